@@ -1,0 +1,196 @@
+"""Camera intrinsics as stored by COLMAP, and the pinhole view of them.
+
+Conventions
+-----------
+* Pixel coordinates follow COLMAP: ``x`` to the right, ``y`` down, and the
+  *centre* of the top-left pixel is at ``(0.5, 0.5)`` (so the image spans
+  ``[0, width] x [0, height]``). The principal point ``(cx, cy)`` is given in the
+  same convention; the image centre is ``(width / 2, height / 2)``.
+* Focal lengths ``fx``, ``fy`` and the principal point are in pixels.
+* ``params`` are COLMAP's parameter vectors exactly as stored, e.g.
+  ``SIMPLE_RADIAL = (f, cx, cy, k)``, ``OPENCV = (fx, fy, cx, cy, k1, k2, p1, p2)``.
+  The positions of focal lengths and principal point are taken from pycolmap
+  (``focal_length_idxs()`` / ``principal_point_idxs()``), not hard-coded.
+* "Normalised" coordinates are undistorted image-plane coordinates at depth 1
+  (pycolmap's ``cam_from_img``), i.e. ``K^-1 [x, y, 1]^T`` for a pinhole camera.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cache
+
+import numpy as np
+import pycolmap
+
+from .errors import CalibrationError
+
+SUPPORTED_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+SINGLE_FOCAL_MODELS = ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL")
+PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Where a camera model keeps its parameters (indices into ``params``)."""
+
+    focal: tuple[int, ...]
+    principal_point: tuple[int, ...]
+    extra: tuple[int, ...]
+    num_params: int
+
+
+@cache
+def _layout(model: str) -> _Layout:
+    """Parameter layout of a COLMAP camera model, queried from pycolmap."""
+    if model not in pycolmap.CameraModelId.__members__ or model == "INVALID":
+        raise ValueError(f"unknown COLMAP camera model: {model!r}")
+    cam = pycolmap.Camera.create_from_model_name(0, model, 1.0, 2, 2)
+    return _Layout(
+        focal=tuple(cam.focal_length_idxs()),
+        principal_point=tuple(cam.principal_point_idxs()),
+        extra=tuple(cam.extra_params_idxs()),
+        num_params=len(cam.params),
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class CameraInfo:
+    """One COLMAP camera.
+
+    Attributes:
+        camera_id: COLMAP camera id.
+        model: COLMAP model name, e.g. ``"SIMPLE_RADIAL"``.
+        width, height: image size in pixels.
+        params: COLMAP parameter vector exactly as stored (float64, read-only copy).
+    """
+
+    camera_id: int
+    model: str
+    width: int
+    height: int
+    params: np.ndarray
+
+    def __post_init__(self) -> None:
+        layout = _layout(self.model)
+        params = np.array(self.params, dtype=np.float64).reshape(-1)
+        if params.size != layout.num_params:
+            raise ValueError(
+                f"camera {self.camera_id}: model {self.model} has {layout.num_params} params, "
+                f"got {params.size}"
+            )
+        params.setflags(write=False)
+        object.__setattr__(self, "params", params)
+        object.__setattr__(self, "camera_id", int(self.camera_id))
+        object.__setattr__(self, "width", int(self.width))
+        object.__setattr__(self, "height", int(self.height))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, CameraInfo):
+            return NotImplemented
+        return (self.camera_id, self.model, self.width, self.height) == (
+            other.camera_id,
+            other.model,
+            other.width,
+            other.height,
+        ) and np.array_equal(self.params, other.params)
+
+    @property
+    def single_focal(self) -> bool:
+        """True if the model has one focal length ``f`` (``fx = fy = f``)."""
+        return len(_layout(self.model).focal) == 1
+
+    @property
+    def intrinsics(self) -> np.ndarray:
+        """``(fx, fy, cx, cy)`` in pixels, shape (4,); ``fx = fy = f`` for single-focal models."""
+        layout = _layout(self.model)
+        focal = self.params[list(layout.focal)]
+        fx, fy = (focal[0], focal[0]) if focal.size == 1 else (focal[0], focal[1])
+        cx, cy = self.params[list(layout.principal_point)]
+        return np.array([fx, fy, cx, cy], dtype=np.float64)
+
+    @property
+    def K(self) -> np.ndarray:  # noqa: N802 - standard name of the calibration matrix
+        """Pinhole calibration matrix ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` (pixels)."""
+        fx, fy, cx, cy = self.intrinsics
+        return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def distortion(self) -> np.ndarray:
+        """The model's extra (distortion) parameters, shape (k,); empty for pinhole models."""
+        return self.params[list(_layout(self.model).extra)].copy()
+
+    @property
+    def is_undistorted(self) -> bool:
+        """True if the model has no distortion parameters or all of them are exactly 0."""
+        return not np.any(self.distortion)
+
+    def with_intrinsics(self, fx: float, fy: float, cx: float, cy: float) -> CameraInfo:
+        """A copy with focal lengths and principal point replaced (pixels).
+
+        Distortion parameters are kept. For single-focal models ``f = (fx + fy) / 2``.
+        """
+        layout = _layout(self.model)
+        params = self.params.copy()
+        if len(layout.focal) == 1:
+            params[layout.focal[0]] = 0.5 * (float(fx) + float(fy))
+        else:
+            params[list(layout.focal)] = (fx, fy)
+        params[list(layout.principal_point)] = (cx, cy)
+        return CameraInfo(self.camera_id, self.model, self.width, self.height, params)
+
+    def to_pycolmap(self) -> pycolmap.Camera:
+        """A new ``pycolmap.Camera`` with the same id, model, size and params."""
+        return pycolmap.Camera(
+            camera_id=self.camera_id,
+            model=self.model,
+            width=self.width,
+            height=self.height,
+            params=self.params.tolist(),
+        )
+
+    @classmethod
+    def from_pycolmap(cls, cam: pycolmap.Camera) -> CameraInfo:
+        """Build from a ``pycolmap.Camera`` (params copied as stored)."""
+        return cls(
+            camera_id=int(cam.camera_id),
+            model=cam.model.name,
+            width=int(cam.width),
+            height=int(cam.height),
+            params=np.asarray(cam.params, dtype=np.float64),
+        )
+
+
+def check_supported(camera: CameraInfo | pycolmap.Camera) -> None:
+    """Raise :class:`CalibrationError` unless the camera model is in ``SUPPORTED_MODELS``."""
+    if isinstance(camera, CameraInfo):
+        model, camera_id = camera.model, camera.camera_id
+    else:
+        model, camera_id = camera.model.name, int(camera.camera_id)
+    if model in SUPPORTED_MODELS:
+        return
+    kind = "fisheye camera model" if "FISHEYE" in model else "camera model"
+    raise CalibrationError(
+        f"camera {camera_id}: {kind} {model} is not supported "
+        f"(supported models: {', '.join(SUPPORTED_MODELS)})"
+    )
+
+
+def undistort_to_pinhole(camera: CameraInfo, xy: np.ndarray) -> np.ndarray:
+    """Map distorted pixel keypoints to where the camera's own pinhole ``K`` would see them.
+
+    Args:
+        camera: the camera; its distortion parameters are kept fixed at the stored values.
+        xy: (n, 2) pixel coordinates (COLMAP convention, see module docstring).
+
+    Returns:
+        (n, 2) float64 pixel coordinates ``K * cam_from_img(xy)``. For pinhole models and
+        cameras whose distortion parameters are all 0 this is a float64 copy of ``xy``.
+        Points that pycolmap cannot undistort come back as NaN.
+    """
+    pts = np.array(xy, dtype=np.float64, copy=True).reshape(-1, 2)
+    if camera.model in PINHOLE_MODELS or camera.is_undistorted or pts.shape[0] == 0:
+        return pts
+    normalised = np.asarray(camera.to_pycolmap().cam_from_img(np.ascontiguousarray(pts)))
+    fx, fy, cx, cy = camera.intrinsics
+    return normalised * np.array([fx, fy]) + np.array([cx, cy])

@@ -1,0 +1,126 @@
+"""Command line: ``colmap-trifocal calibrate DATABASE ...`` (see README / DESIGN.md).
+
+Exit status 0 on success. Input problems print one line ``error: ...`` on
+stderr and exit with status 2 (130 when interrupted); no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+from . import __version__
+from .errors import CalibrationError
+from .log import logger
+from .pipeline import METHODS, CalibrationOptions, calibrate_database, parse_prior
+
+EXIT_INPUT_ERROR = 2
+EXIT_INTERRUPTED = 130
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse that reports usage mistakes as a single ``error: ...`` line."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        sys.stderr.write(f"error: {message} (see '{self.prog} --help')\n")
+        raise SystemExit(EXIT_INPUT_ERROR)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _OneLineParser(
+        prog="colmap-trifocal",
+        description="Self-calibrate COLMAP cameras (fx, fy, cx, cy) with TrifocalCalib.",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="-v info, -vv debug")
+    commands = parser.add_subparsers(dest="command", required=True, parser_class=_OneLineParser)
+
+    calibrate = commands.add_parser(
+        "calibrate", help="estimate the intrinsics of the cameras of a COLMAP database"
+    )
+    calibrate.add_argument("database", type=Path, help="COLMAP database with verified matches")
+    calibrate.add_argument("--method", choices=METHODS, default="msac-opt")
+    calibrate.add_argument(
+        "--prior",
+        metavar="FX,FY,CX,CY",
+        help="starting intrinsics in pixels (default: the camera stored in the database)",
+    )
+    calibrate.add_argument("--camera-id", type=int, action="append", dest="camera_ids",
+                           metavar="ID", help="calibrate only this camera (repeatable)")
+    calibrate.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    calibrate.add_argument("--json", type=Path, metavar="OUT", help="write the results as JSON")
+    calibrate.add_argument(
+        "--write",
+        action="store_true",
+        help="store the estimate in the database (a backup <name>.bak is made first)",
+    )
+    calibrate.add_argument("--max-triplets", type=int, default=CalibrationOptions.max_triplets)
+    calibrate.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    return parser
+
+
+def _configure_logging(verbosity: int) -> None:
+    if verbosity <= 0:
+        return
+    handler = logging.StreamHandler()
+    handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+    logger.addHandler(handler)
+    logger.setLevel(logging.DEBUG if verbosity > 1 else logging.INFO)
+
+
+def _run_calibrate(args: argparse.Namespace) -> int:
+    options = CalibrationOptions(
+        method=args.method,
+        prior=parse_prior(args.prior) if args.prior is not None else None,
+        camera_ids=args.camera_ids,
+        seed=args.seed,
+        max_triplets=args.max_triplets,
+        write=args.write,
+        progress=not args.no_progress and sys.stderr.isatty(),
+    )
+    if args.max_triplets < 1:
+        raise CalibrationError("--max-triplets must be at least 1")
+    if args.json is not None and not args.json.parent.is_dir():
+        raise CalibrationError(f"cannot write --json: folder {args.json.parent} does not exist")
+    results = calibrate_database(args.database, options)
+    print(f"{'camera':>6} {'model':<14} {'method':<11} {'fx':>10} {'fy':>10} {'cx':>10} "
+          f"{'cy':>10} {'triplets':>9} {'time':>7}")
+    for r in results:
+        print(f"{r.camera_id:>6} {r.model:<14} {r.method:<11} {r.fx:>10.2f} {r.fy:>10.2f} "
+              f"{r.cx:>10.2f} {r.cy:>10.2f} {r.num_inlier_triplets:>4}/{r.num_triplets:<4} "
+              f"{r.seconds:>6.1f}s")
+        hidden = [name for name, ok in r.observable.items() if not ok]
+        if hidden:
+            print(f"warning: camera {r.camera_id}: {', '.join(hidden)} not well determined "
+                  "by these images", file=sys.stderr)
+    if args.json is not None:
+        try:
+            args.json.write_text(json.dumps([r.to_json() for r in results], indent=2) + "\n")
+        except OSError as exc:
+            raise CalibrationError(f"cannot write {args.json}: {exc.strerror or exc}") from None
+    if args.write:
+        print(f"wrote {len(results)} camera(s) to {args.database}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``colmap-trifocal`` console script."""
+    args = build_parser().parse_args(argv)
+    _configure_logging(args.verbose)
+    try:
+        if args.command == "calibrate":
+            return _run_calibrate(args)
+    except CalibrationError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_INPUT_ERROR
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return EXIT_INPUT_ERROR
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,457 @@
+"""Read a COLMAP database without touching it; write calibrated intrinsics back on request.
+
+Reading never modifies the user's file: ``pycolmap.Database.open`` creates missing files and
+writes to existing ones (schema set-up bumps the SQLite header even when nothing else
+changes), so the database is first checked and snapshotted with Python's ``sqlite3`` in
+read-only mode (``Connection.backup`` into a temporary directory) and pycolmap only ever
+opens that snapshot.
+
+Conventions
+-----------
+* Image pairs are keyed ``(id1, id2)`` with ``id1 < id2``. ``matches[(id1, id2)][:, 0]``
+  indexes ``keypoints[id1]`` and ``[:, 1]`` indexes ``keypoints[id2]``.
+* Keypoints are raw (distorted) pixel coordinates as stored by COLMAP; the centre of the
+  top-left pixel is at ``(0.5, 0.5)``.
+* ``fundamentals[(id1, id2)] = F`` satisfies ``x2^T F x1 = 0`` for homogeneous pixel
+  coordinates ``x1`` in image ``id1`` and ``x2`` in image ``id2``. This is COLMAP's
+  convention for the pair returned by ``pycolmap.pair_id_to_image_pair(pair_id)`` (checked
+  numerically in the tests). COLMAP estimates F on raw keypoints; when only an essential
+  matrix is stored (``CALIBRATED`` geometries) F is derived as ``K2^-T E K1^-1`` with the
+  cameras' pinhole ``K``, which holds for undistorted pixels (exact for pinhole cameras).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sqlite3
+import stat
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pycolmap
+
+from .cameras import CameraInfo
+from .errors import CalibrationError
+from .log import logger
+
+REQUIRED_TABLES = ("cameras", "images", "keypoints", "two_view_geometries")
+MIN_IMAGES = 3
+
+_SQLITE_MAGIC = b"SQLite format 3\x00"
+_HEADER_SIZE = 100
+_LOCK_TIMEOUT_S = 5.0
+_Config = pycolmap.TwoViewGeometryConfiguration
+#: Two-view geometries whose inliers are not used: failed or watermark-only pairs.
+_EXCLUDED_CONFIGS = frozenset({int(_Config.DEGENERATE), int(_Config.WATERMARK)})
+#: Configurations for which a stored essential matrix may stand in for a missing F.
+_CALIBRATED_CONFIGS = frozenset({int(_Config.CALIBRATED), int(_Config.CALIBRATED_RIG)})
+
+Pair = tuple[int, int]
+
+
+@dataclass
+class DatabaseContents:
+    """Everything the calibration needs from a COLMAP database (see module conventions).
+
+    Attributes:
+        cameras: camera_id -> camera (params as stored).
+        image_names: image_id -> image name.
+        image_camera: image_id -> camera_id.
+        keypoints: image_id -> (n, 2) float64 raw pixel coordinates ``(x, y)``.
+        matches: (id1, id2), id1 < id2 -> (m, 2) int64 keypoint indices of the verified
+            inlier matches (m >= 1).
+        fundamentals: (id1, id2) -> 3x3 float64 F with ``x2^T F x1 = 0`` (pixels), for the
+            matched pairs that have a usable F.
+    """
+
+    cameras: dict[int, CameraInfo] = field(default_factory=dict)
+    image_names: dict[int, str] = field(default_factory=dict)
+    image_camera: dict[int, int] = field(default_factory=dict)
+    keypoints: dict[int, np.ndarray] = field(default_factory=dict)
+    matches: dict[Pair, np.ndarray] = field(default_factory=dict)
+    fundamentals: dict[Pair, np.ndarray] = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- file checks
+
+
+def _check_sqlite_file(path: Path) -> bytes:
+    """Check that ``path`` is a regular, readable SQLite file; return its 100-byte header."""
+    if not path.exists():
+        raise CalibrationError(f"database not found: {path}")
+    if path.is_dir():
+        raise CalibrationError(f"database path is a directory: {path}")
+    if not path.is_file():
+        raise CalibrationError(f"database path is not a regular file: {path}")
+    try:
+        with path.open("rb") as fh:
+            header = fh.read(_HEADER_SIZE)
+    except OSError as exc:
+        raise CalibrationError(f"cannot read database: {path} ({exc.strerror})") from exc
+    if len(header) < _HEADER_SIZE or not header.startswith(_SQLITE_MAGIC):
+        raise CalibrationError(f"not an SQLite database: {path}")
+    return header
+
+
+def _check_tables(con: sqlite3.Connection, path: Path) -> None:
+    """Raise unless the connected database has COLMAP's tables."""
+    names = {row[0] for row in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    missing = [table for table in REQUIRED_TABLES if table not in names]
+    if missing:
+        raise CalibrationError(f"not a COLMAP database (no table {', '.join(missing)}): {path}")
+
+
+def _sqlite_error(exc: sqlite3.Error, path: Path, action: str = "read") -> CalibrationError:
+    """Turn an sqlite3 error on the user's database into a one-line user error."""
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    if "locked" in text or "busy" in text:
+        return CalibrationError(f"database is locked by another process: {path}")
+    return CalibrationError(f"cannot {action} database (truncated or corrupt?): {path} ({text})")
+
+
+def _sidecar(path: Path, suffix: str) -> Path:
+    """SQLite's companion file, e.g. ``<path>-wal``."""
+    return path.with_name(path.name + suffix)
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def _backup_readonly(path: Path, dst: Path, immutable: bool) -> None:
+    """Check ``path`` for COLMAP tables and copy it to ``dst`` with the SQLite backup API.
+
+    ``immutable=True`` opens without locks and without creating ``-wal``/``-shm`` files; it
+    is only used for a WAL database that has no ``-wal`` file (the main file then holds the
+    whole database) and the caller checks the file did not change meanwhile.
+    """
+    query = "mode=ro&immutable=1" if immutable else "mode=ro"
+    uri = f"{path.resolve().as_uri()}?{query}"
+    try:
+        src = sqlite3.connect(uri, uri=True, timeout=_LOCK_TIMEOUT_S)
+        try:
+            _check_tables(src, path)
+            out = sqlite3.connect(dst)
+            try:
+                src.backup(out)
+            finally:
+                out.close()
+        finally:
+            src.close()
+    except sqlite3.Error as exc:
+        raise _sqlite_error(exc, path) from exc
+
+
+def _stat_key(path: Path) -> tuple[int, int, int]:
+    st = path.stat()
+    return st.st_ino, st.st_size, st.st_mtime_ns
+
+
+def _snapshot(path: Path, header: bytes, dst: Path) -> None:
+    """Write a consistent copy of the database at ``path`` to ``dst``; ``path`` is untouched.
+
+    A read-only SQLite connection to a WAL database leaves ``-wal``/``-shm`` files behind,
+    so when the main file is self-contained (WAL mode, no ``-wal`` file) it is read as
+    immutable and the copy is kept only if the file did not change while copying. Otherwise
+    (rollback journal, or another process has the database open) a normal read-only,
+    locking connection is used.
+    """
+    wal_mode = header[18] == 2 and header[19] == 2
+    if wal_mode and not _sidecar(path, "-wal").exists():
+        before = _stat_key(path)
+        _backup_readonly(path, dst, immutable=True)
+        if _stat_key(path) == before:
+            return
+        logger.debug("database changed while copying; copying again with locking: %s", path)
+        dst.unlink()
+    _backup_readonly(path, dst, immutable=False)
+
+
+def _keypoints_xy(raw: np.ndarray) -> np.ndarray:
+    """First two columns (x, y) of COLMAP keypoints as a contiguous (n, 2) float64 array."""
+    arr = np.asarray(raw)
+    if arr.size == 0:
+        return np.zeros((0, 2), dtype=np.float64)
+    return np.ascontiguousarray(arr.reshape(arr.shape[0], -1)[:, :2], dtype=np.float64)
+
+
+def _usable(matrix: np.ndarray | None) -> np.ndarray | None:
+    """A finite, nonzero 3x3 float64 matrix, or None."""
+    if matrix is None:
+        return None
+    arr = np.asarray(matrix, dtype=np.float64)
+    if arr.shape != (3, 3) or not np.all(np.isfinite(arr)) or not np.any(arr):
+        return None
+    return arr.copy()
+
+
+def _pair_fundamental(
+    tvg: pycolmap.TwoViewGeometry, camera1: CameraInfo | None, camera2: CameraInfo | None
+) -> np.ndarray | None:
+    """F of a two-view geometry (image 1 -> image 2), from F or else from E; None if neither."""
+    fundamental = _usable(tvg.F)
+    if fundamental is not None or int(tvg.config) not in _CALIBRATED_CONFIGS:
+        return fundamental
+    essential = _usable(tvg.E)
+    if essential is None or camera1 is None or camera2 is None:
+        return None
+    return np.linalg.inv(camera2.K).T @ essential @ np.linalg.inv(camera1.K)
+
+
+def _verified_pairs(
+    pair_ids: list[int],
+    geometries: list[pycolmap.TwoViewGeometry],
+    contents: DatabaseContents,
+    path: Path,
+) -> None:
+    """Fill ``contents.matches`` and ``contents.fundamentals`` from the two-view geometries."""
+    num_excluded = 0
+    for pair_id, tvg in zip(pair_ids, geometries, strict=True):
+        id1, id2 = (int(i) for i in pycolmap.pair_id_to_image_pair(pair_id))
+        inliers = np.asarray(tvg.inlier_matches, dtype=np.int64).reshape(-1, 2)
+        if inliers.shape[0] < 1:
+            continue
+        if int(tvg.config) in _EXCLUDED_CONFIGS:
+            num_excluded += 1
+            continue
+        if id1 not in contents.keypoints or id2 not in contents.keypoints:
+            logger.warning("skipping matches of unknown image pair (%d, %d)", id1, id2)
+            continue
+        cams = contents.cameras
+        camera1 = cams.get(contents.image_camera[id1])
+        camera2 = cams.get(contents.image_camera[id2])
+        fundamental = _pair_fundamental(tvg, camera1, camera2)
+        if id1 > id2:  # COLMAP normalises pairs to id1 < id2; kept for safety
+            id1, id2 = id2, id1
+            inliers = inliers[:, ::-1]
+            fundamental = None if fundamental is None else fundamental.T
+        sizes = np.array([len(contents.keypoints[id1]), len(contents.keypoints[id2])])
+        if np.any(inliers < 0) or np.any(inliers >= sizes):
+            raise CalibrationError(
+                f"corrupt database: match indices out of range for images {id1} and {id2}: {path}"
+            )
+        contents.matches[(id1, id2)] = np.ascontiguousarray(inliers)
+        if fundamental is not None:
+            contents.fundamentals[(id1, id2)] = fundamental
+    if num_excluded:
+        logger.info("ignored %d degenerate or watermark image pairs", num_excluded)
+
+
+def _read_snapshot(snapshot: Path, path: Path) -> DatabaseContents:
+    """Read the snapshot with pycolmap (``path`` is only used in messages)."""
+    contents = DatabaseContents()
+    try:
+        with pycolmap.Database.open(str(snapshot)) as db:
+            for cam in db.read_all_cameras():
+                contents.cameras[int(cam.camera_id)] = CameraInfo.from_pycolmap(cam)
+            for image in db.read_all_images():
+                image_id = int(image.image_id)
+                contents.image_names[image_id] = image.name
+                contents.image_camera[image_id] = int(image.camera_id)
+                contents.keypoints[image_id] = _keypoints_xy(db.read_keypoints(image_id))
+            pair_ids, geometries = db.read_two_view_geometries()
+    except CalibrationError:
+        raise
+    except (RuntimeError, ValueError) as exc:
+        first_line = (str(exc).strip().splitlines() or [type(exc).__name__])[-1]
+        raise CalibrationError(f"cannot read COLMAP database {path}: {first_line}") from exc
+    missing = sorted(set(contents.image_camera.values()) - set(contents.cameras))
+    if missing:
+        raise CalibrationError(
+            f"corrupt database: images refer to missing camera {missing[0]}: {path}"
+        )
+    _verified_pairs(pair_ids, geometries, contents, path)
+    return contents
+
+
+def read_database(path: Path) -> DatabaseContents:
+    """Read cameras, images, raw keypoints and verified matches from a COLMAP database.
+
+    The file at ``path`` stays byte-identical and no companion files are left behind in
+    the usual case (see :func:`_snapshot`). Pairs flagged DEGENERATE or WATERMARK are
+    ignored.
+
+    Raises:
+        CalibrationError: the path is missing, a directory, not an SQLite/COLMAP database,
+            locked or corrupt; or it has fewer than 3 images or no verified matches.
+    """
+    path = Path(path)
+    header = _check_sqlite_file(path)
+    with tempfile.TemporaryDirectory(prefix="colmap_trifocal_") as tmp:
+        snapshot = Path(tmp) / "snapshot.db"
+        _snapshot(path, header, snapshot)
+        contents = _read_snapshot(snapshot, path)
+    num_images = len(contents.image_names)
+    if num_images == 0:
+        raise CalibrationError(f"database has no images: {path}")
+    if num_images < MIN_IMAGES:
+        raise CalibrationError(
+            f"database has only {num_images} images, at least {MIN_IMAGES} are needed: {path}"
+        )
+    if not contents.matches:
+        raise CalibrationError(
+            f"database has no verified matches (run COLMAP feature matching first): {path}"
+        )
+    logger.info(
+        "read %s: %d cameras, %d images, %d verified pairs (%d with F)",
+        path,
+        len(contents.cameras),
+        num_images,
+        len(contents.matches),
+        len(contents.fundamentals),
+    )
+    return contents
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def _check_writable(path: Path) -> None:
+    """Refuse read-only files (no write permission, or no write bit at all, even for root)."""
+    if not os.access(path, os.W_OK) or not path.stat().st_mode & (
+        stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH
+    ):
+        raise CalibrationError(f"cannot write to read-only database: {path}")
+    if not os.access(path.parent, os.W_OK):
+        raise CalibrationError(f"cannot write next to the database (read-only directory): {path}")
+
+
+def _claim_backup_path(path: Path) -> Path:
+    """Create (exclusively) and return the first free ``<name>.bak``, ``.bak1``, ``.bak2``, ..."""
+    index = 0
+    while True:
+        candidate = path.with_name(f"{path.name}.bak{index or ''}")
+        try:
+            fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        except FileExistsError:
+            index += 1
+            continue
+        os.close(fd)
+        return candidate
+
+
+def _make_backup(path: Path, con: sqlite3.Connection) -> Path:
+    """Copy the database next to itself without overwriting anything; return the copy's path.
+
+    If the ``-wal`` file is empty the main file holds the whole database and is copied
+    byte for byte (``shutil.copy2`` semantics); otherwise the SQLite backup API is used so
+    that committed changes still in the WAL are included.
+    """
+    target = _claim_backup_path(path)
+    try:
+        wal = _sidecar(path, "-wal")
+        if wal.exists() and wal.stat().st_size > 0:
+            out = sqlite3.connect(target)
+            try:
+                con.backup(out)
+            finally:
+                out.close()
+        else:
+            shutil.copyfile(path, target)
+            shutil.copystat(path, target)
+    except BaseException:
+        target.unlink(missing_ok=True)
+        raise
+    return target
+
+
+def _params_blob(camera: CameraInfo) -> bytes:
+    """COLMAP's ``cameras.params`` blob: the params as little-endian float64."""
+    return np.ascontiguousarray(camera.params, dtype="<f8").tobytes()
+
+
+def _check_cameras_match(
+    con: sqlite3.Connection, cameras: dict[int, CameraInfo], path: Path
+) -> None:
+    """Each camera must exist in the database with the same model and image size."""
+    rows = {
+        int(cid): (int(model), int(width), int(height))
+        for cid, model, width, height in con.execute(
+            "SELECT camera_id, model, width, height FROM cameras"
+        )
+    }
+    for camera_id, cam in cameras.items():
+        if camera_id != cam.camera_id:
+            raise ValueError(f"cameras[{camera_id}] has camera_id {cam.camera_id}")
+        if camera_id not in rows:
+            raise CalibrationError(f"camera {camera_id} is not in the database: {path}")
+        if not np.all(np.isfinite(cam.params)):
+            raise CalibrationError(f"camera {camera_id}: refusing to write non-finite params")
+        expected = (int(pycolmap.CameraModelId(cam.model)), cam.width, cam.height)
+        if rows[camera_id] != expected:
+            raise CalibrationError(
+                f"camera {camera_id} in the database differs in model or size from the "
+                f"calibrated one: {path}"
+            )
+
+
+def _verify_written(con: sqlite3.Connection, cameras: dict[int, CameraInfo], path: Path) -> None:
+    """Read the params back and compare them bit for bit with what was written."""
+    for camera_id, cam in cameras.items():
+        row = con.execute("SELECT params FROM cameras WHERE camera_id = ?", (camera_id,)).fetchone()
+        if row is None or bytes(row[0]) != _params_blob(cam):
+            raise CalibrationError(f"verification failed after writing camera {camera_id}: {path}")
+
+
+def write_intrinsics(
+    path: Path, cameras: dict[int, CameraInfo], backup: bool = True
+) -> Path | None:
+    """Write the cameras' params into the COLMAP database at ``path`` (in place).
+
+    Only the ``params`` column of the given cameras changes; all cameras are updated in one
+    ``BEGIN IMMEDIATE ... COMMIT`` transaction (rolled back on any error) and read back.
+
+    Args:
+        path: COLMAP database.
+        cameras: camera_id -> camera with the new params (same model and size as stored).
+        backup: first copy the database to ``<name>.bak`` (or ``.bak1``, ``.bak2``, ... if
+            taken; an existing backup is never overwritten).
+
+    Returns:
+        The backup's path, or None if no backup was made (``backup=False`` or no cameras).
+
+    Raises:
+        CalibrationError: missing/invalid/read-only/locked database, unknown camera, model
+            or size mismatch, concurrent modification, or failed verification.
+    """
+    path = Path(path)
+    _check_sqlite_file(path)
+    _check_writable(path)
+    if not cameras:
+        logger.info("no cameras to write")
+        return None
+    uri = f"{path.resolve().as_uri()}?mode=rw"
+    backup_path: Path | None = None
+    try:
+        con = sqlite3.connect(uri, uri=True, timeout=_LOCK_TIMEOUT_S, isolation_level=None)
+        try:
+            _check_tables(con, path)
+            _check_cameras_match(con, cameras, path)
+            version = con.execute("PRAGMA data_version").fetchone()[0]
+            if backup:
+                backup_path = _make_backup(path, con)
+                logger.info("backed up %s to %s", path, backup_path)
+            con.execute("BEGIN IMMEDIATE")
+            try:
+                if con.execute("PRAGMA data_version").fetchone()[0] != version:
+                    raise CalibrationError(
+                        f"database was modified by another process, nothing written: {path}"
+                    )
+                con.executemany(
+                    "UPDATE cameras SET params = ? WHERE camera_id = ?",
+                    [(_params_blob(cam), camera_id) for camera_id, cam in cameras.items()],
+                )
+                con.execute("COMMIT")
+            except BaseException:
+                if con.in_transaction:
+                    con.execute("ROLLBACK")
+                raise
+            _verify_written(con, cameras, path)
+        finally:
+            con.close()
+    except sqlite3.Error as exc:
+        raise _sqlite_error(exc, path, "write") from exc
+    logger.info("wrote intrinsics of %d cameras to %s", len(cameras), path)
+    return backup_path

@@ -1,0 +1,280 @@
+"""Calibrate every camera of a COLMAP database: the public entry point.
+
+``calibrate_database(path, options)`` reads the database (never changing it),
+then for each camera: undistorts its keypoints with the stored distortion,
+selects triplets of images taken with that camera, estimates one robust tensor
+per triplet, and solves for (fx, fy, cx, cy) with the chosen method. With
+``options.write`` the estimates are stored in the database (backup first, one
+transaction).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from .cameras import CameraInfo, check_supported, undistort_to_pinhole
+from .database import DatabaseContents, read_database, write_intrinsics
+from .errors import CalibrationError
+from .fundamental import calibrate_from_fundamentals
+from .log import logger
+from .selfcalibration import MSAC_TAU, solve, theta_to_intrinsics
+from .tensor_estimation import TensorEstimationOptions, TripletTensor, estimate_triplet_tensor
+from .tracks import MatchGraph, select_triplets
+from .trifocal import intrinsics_matrix
+
+METHODS = ("msac-opt", "msac", "direct", "fundamental")
+PARAMETER_NAMES = ("fx", "fy", "cx", "cy")
+#: A parameter counts as observable when its standard deviation is below this
+#: fraction of the focal length (2 %: well beyond the ±5 % of a typical prior).
+OBSERVABLE_RELATIVE_STD = 0.02
+
+
+@dataclass
+class CalibrationOptions:
+    """Settings of :func:`calibrate_database` (the CLI flags of ``calibrate``)."""
+
+    method: str = "msac-opt"
+    #: Starting point (fx, fy, cx, cy) in pixels for every camera; None: the stored camera.
+    prior: tuple[float, float, float, float] | None = None
+    #: Cameras to calibrate; None: all cameras with at least 3 images.
+    camera_ids: list[int] | None = None
+    seed: int = 0
+    #: Triplets used per camera (the ones with most tracks).
+    max_triplets: int = 40
+    min_tracks: int = 40
+    tau: float = MSAC_TAU
+    tensor: TensorEstimationOptions = field(default_factory=TensorEstimationOptions)
+    write: bool = False
+    progress: bool = False
+
+
+@dataclass
+class CameraCalibration:
+    """The estimate for one camera, as written by ``calibrate --json``."""
+
+    camera_id: int
+    model: str
+    method: str
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    std: dict[str, float | None]
+    observable: dict[str, bool]
+    num_triplets: int
+    num_inlier_triplets: int
+    seconds: float
+    prior: tuple[float, float, float, float]
+    tensors: list[TripletTensor] = field(default_factory=list, repr=False)
+
+    @property
+    def intrinsics(self) -> np.ndarray:
+        """(fx, fy, cx, cy) in pixels."""
+        return np.array([self.fx, self.fy, self.cx, self.cy])
+
+    def to_json(self) -> dict:
+        """The JSON object of DESIGN.md (plus the prior used)."""
+        data = asdict(self)
+        data.pop("tensors")
+        data["prior"] = dict(zip(PARAMETER_NAMES, self.prior, strict=True))
+        return data
+
+
+def parse_prior(text: str) -> tuple[float, float, float, float]:
+    """Parse ``FX,FY,CX,CY`` (pixels); CalibrationError on anything else."""
+    parts = [p.strip() for p in text.split(",")]
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        raise CalibrationError(
+            f"malformed --prior {text!r}: expected four numbers FX,FY,CX,CY"
+        ) from None
+    if len(values) != 4:
+        raise CalibrationError(
+            f"malformed --prior {text!r}: expected 4 values FX,FY,CX,CY, got {len(values)}"
+        )
+    if not all(np.isfinite(values)) or values[0] <= 0 or values[1] <= 0:
+        raise CalibrationError(
+            f"invalid --prior {text!r}: values must be finite and focal lengths positive"
+        )
+    return values  # type: ignore[return-value]
+
+
+def calibrate_database(
+    path: Path | str, options: CalibrationOptions | None = None
+) -> list[CameraCalibration]:
+    """Estimate the intrinsics of the cameras of a COLMAP database.
+
+    Args:
+        path: the database; opened read-only unless ``options.write``.
+        options: method, prior, seed, ... (defaults: msac-opt from the stored cameras).
+
+    Returns:
+        One result per calibrated camera, ordered by camera id.
+
+    Raises:
+        CalibrationError: bad input (see the message).
+    """
+    options = options or CalibrationOptions()
+    if options.method not in METHODS:
+        raise CalibrationError(f"unknown method {options.method!r} (choose from {METHODS})")
+    path = Path(path)
+    contents = read_database(path)
+    results = calibrate_contents(contents, options)
+    if options.write:
+        updated = {
+            r.camera_id: contents.cameras[r.camera_id].with_intrinsics(r.fx, r.fy, r.cx, r.cy)
+            for r in results
+        }
+        backup = write_intrinsics(path, updated)
+        logger.info("wrote %d camera(s) to %s (backup: %s)", len(updated), path, backup)
+    return results
+
+
+def calibrate_contents(
+    contents: DatabaseContents, options: CalibrationOptions
+) -> list[CameraCalibration]:
+    """Calibrate the cameras of already-read database contents (see :func:`calibrate_database`)."""
+    images_of: dict[int, list[int]] = {}
+    for image_id, camera_id in contents.image_camera.items():
+        images_of.setdefault(camera_id, []).append(image_id)
+    if options.camera_ids is not None:
+        missing = sorted(set(options.camera_ids) - set(contents.cameras))
+        if missing:
+            raise CalibrationError(f"camera id {missing[0]} is not in the database")
+        camera_ids = sorted(options.camera_ids)
+    else:
+        camera_ids = sorted(c for c in contents.cameras if len(images_of.get(c, [])) >= 3)
+        if not camera_ids:
+            raise CalibrationError("no camera has at least 3 images")
+    return [
+        calibrate_camera(contents, contents.cameras[c], sorted(images_of.get(c, [])), options)
+        for c in camera_ids
+    ]
+
+
+def calibrate_camera(
+    contents: DatabaseContents,
+    camera: CameraInfo,
+    image_ids: list[int],
+    options: CalibrationOptions,
+) -> CameraCalibration:
+    """Estimate one camera from the triplets of its own images."""
+    start = time.perf_counter()
+    check_supported(camera)
+    if len(image_ids) < 3:
+        raise CalibrationError(
+            f"camera {camera.camera_id} has {len(image_ids)} image(s); at least 3 are needed"
+        )
+    prior = np.asarray(options.prior if options.prior is not None else camera.intrinsics, float)
+    if camera.single_focal:
+        prior[:2] = prior[:2].mean()
+    keypoints = {i: undistort_to_pinhole(camera, contents.keypoints[i]) for i in image_ids}
+    own = set(image_ids)
+    matches = {p: m for p, m in contents.matches.items() if p[0] in own and p[1] in own}
+    if not matches:
+        raise CalibrationError(f"camera {camera.camera_id}: no verified matches between its images")
+
+    if options.method == "fundamental":
+        return _fundamental(camera, keypoints, matches, prior, options, start)
+
+    graph = MatchGraph(matches, {i: len(k) for i, k in keypoints.items()})
+    triplets = select_triplets(graph, image_ids, options.min_tracks, options.max_triplets)
+    if not triplets:
+        raise CalibrationError(
+            f"camera {camera.camera_id}: no image triplet with at least {options.min_tracks} "
+            "three-view tracks"
+        )
+    rng = np.random.default_rng(options.seed)
+    K0 = intrinsics_matrix(prior)
+    tensors = []
+    for triplet in tqdm(
+        triplets, desc=f"camera {camera.camera_id}: tensors", disable=not options.progress
+    ):
+        tracks = np.stack(
+            [keypoints[i][triplet.keypoint_indices[:, v]] for v, i in enumerate(triplet.image_ids)]
+        )
+        tensor = estimate_triplet_tensor(triplet.image_ids, tracks, K0, rng, options.tensor)
+        if tensor is not None:
+            tensors.append(tensor)
+    logger.info(
+        "camera %d: %d of %d triplets gave a tensor", camera.camera_id, len(tensors), len(triplets)
+    )
+    if len(tensors) < 1:
+        raise CalibrationError(
+            f"camera {camera.camera_id}: no triplet gave a consistent trifocal tensor"
+        )
+    solution = solve(tensors, options.method, camera.single_focal, options.tau)
+    estimate = theta_to_intrinsics(solution.theta, prior)
+    scale = np.array([prior[0], prior[1], prior[0], prior[1]])
+    std = np.sqrt(np.maximum(np.diag(solution.covariance), 0.0)) * scale
+    return CameraCalibration(
+        camera_id=camera.camera_id,
+        model=camera.model,
+        method=options.method,
+        **dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True)),
+        std={name: float(s) for name, s in zip(PARAMETER_NAMES, std, strict=True)},
+        observable=_observable(std, prior),
+        num_triplets=len(tensors),
+        num_inlier_triplets=int(solution.inlier_tensors.sum()),
+        seconds=time.perf_counter() - start,
+        prior=tuple(map(float, prior)),  # type: ignore[arg-type]
+        tensors=tensors,
+    )
+
+
+def _observable(std: np.ndarray, prior: np.ndarray) -> dict[str, bool]:
+    focal = float(np.mean(prior[:2]))
+    return {
+        name: bool(np.isfinite(s) and s < OBSERVABLE_RELATIVE_STD * focal)
+        for name, s in zip(PARAMETER_NAMES, std, strict=True)
+    }
+
+
+def _fundamental(
+    camera: CameraInfo,
+    keypoints: dict[int, np.ndarray],
+    matches: dict[tuple[int, int], np.ndarray],
+    prior: np.ndarray,
+    options: CalibrationOptions,
+    start: float,
+) -> CameraCalibration:
+    """The Mendonça–Cipolla baseline on F re-estimated from the undistorted verified matches.
+
+    F is re-fitted (normalised 8-point on COLMAP's inliers) rather than read from
+    the database because the stored F relates raw, distorted keypoints.
+    """
+    fundamentals, weights = [], []
+    for (a, b), m in matches.items():
+        if len(m) < 15:
+            continue
+        F, _ = cv2.findFundamentalMat(keypoints[a][m[:, 0]], keypoints[b][m[:, 1]], cv2.FM_8POINT)
+        if F is not None and F.shape == (3, 3):
+            fundamentals.append(F)
+            weights.append(len(m))
+    if len(fundamentals) < 2:
+        raise CalibrationError(
+            f"camera {camera.camera_id}: fewer than 2 image pairs with enough verified matches"
+        )
+    result = calibrate_from_fundamentals(
+        np.stack(fundamentals), prior, np.asarray(weights, float), camera.single_focal
+    )
+    nan = {name: None for name in PARAMETER_NAMES}
+    return CameraCalibration(
+        camera_id=camera.camera_id,
+        model=camera.model,
+        method="fundamental",
+        **dict(zip(PARAMETER_NAMES, map(float, result.intrinsics), strict=True)),
+        std=nan,
+        observable={name: bool(result.success) for name in PARAMETER_NAMES},
+        num_triplets=0,
+        num_inlier_triplets=0,
+        seconds=time.perf_counter() - start,
+        prior=tuple(map(float, prior)),  # type: ignore[arg-type]
+    )

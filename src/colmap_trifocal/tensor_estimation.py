@@ -1,0 +1,224 @@
+"""Robust trifocal tensor estimation for one image triplet.
+
+1. Coordinates are normalised with the prior intrinsics, ``x̂ = K0⁻¹ x``: centred
+   and of unit scale, which conditions the linear system as well as Hartley's
+   normalisation and lets the tensor be calibrated later by ``M = K0⁻¹ K``.
+2. MSAC over a pool of hypotheses scored by a geometric error: cameras
+   ``P2, P3`` of each hypothesis, each track triangulated in closed form (its
+   view-1 point plus the inverse depth that best fits views 2 and 3), and the
+   squared reprojection errors of views 2 and 3 summed, in pixels. The pool:
+
+   * minimal linear tensors (7 tracks each, all solved in one batched SVD);
+   * one hypothesis from the prior intrinsics: the essential matrix of views 1-2
+     (5-point RANSAC) and the pose of view 3 by PnP RANSAC on the triangulated
+     tracks. Measured on fountain-P11: when most tracks lie on one plane, linear
+     7-point samples are degenerate and about half the selected tensors were
+     wrong (constraints no smaller at the true K than at the prior); neither the
+     5-point solver nor PnP is degenerate for planes, so this hypothesis wins
+     there, and the projective refinement removes the prior's bias.
+3. The best hypothesis' inliers (at most ``max_refined_tracks`` of them, a
+   seeded random subset) are refined by three-view projective bundle adjustment
+   (:mod:`.projective_ba`); inliers are re-selected with the refined cameras and
+   refined once more.
+
+The returned tensor is built from the refined cameras, so it is a geometrically
+valid trifocal tensor, and it comes with the covariance of those cameras.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from .projective_ba import ProjectiveBAResult, refine_triplet
+from .trifocal import cameras_from_tensor, linear_tensor, normalize_tensor, tensor_from_cameras
+
+MINIMAL_SAMPLE = 7
+
+
+@dataclass
+class TensorEstimationOptions:
+    """Settings of the per-triplet estimation (pixels are those of the keypoints)."""
+
+    num_hypotheses: int = 100
+    #: A track is an inlier when its reprojection error over views 2 and 3,
+    #: sqrt(e2² + e3²), is below this, in pixels. COLMAP verifies pairs at 4 px.
+    inlier_threshold_px: float = 4.0
+    min_inliers: int = 30
+    refinement_rounds: int = 2
+    max_ba_iterations: int = 30
+    #: Tracks on which the hypotheses are scored (a random subset).
+    max_scored_tracks: int = 1000
+    #: Tracks used by the bundle adjustment (a random subset of the inliers).
+    #: The covariance passed on accounts for how many were used.
+    max_refined_tracks: int = 800
+
+
+@dataclass
+class TripletTensor:
+    """A refined, geometrically valid trifocal tensor in prior-normalised coordinates."""
+
+    image_ids: tuple[int, int, int]
+    tensor: np.ndarray  # (3, 3, 3), unit Frobenius norm, slices T[i] (see trifocal.py)
+    P2: np.ndarray  # (3, 4) with P1 = [I|0]
+    P3: np.ndarray  # (3, 4)
+    camera_covariance: np.ndarray  # (24, 24) covariance of vec(P2), vec(P3)
+    num_tracks: int
+    num_inliers: int
+    sigma_px: float  # estimated keypoint noise, px
+    inliers: np.ndarray = field(repr=False)  # (num_tracks,) bool
+
+
+def transfer_errors(
+    x: np.ndarray, P2: np.ndarray, P3: np.ndarray, pixel_scale: np.ndarray
+) -> np.ndarray:
+    """Squared reprojection errors (…, n) of tracks x (3, n, 2) under cameras (…, 3, 4).
+
+    Each track keeps its view-1 point; its inverse depth ρ minimises the algebraic
+    error in views 2 and 3; the errors of views 2 and 3 are summed (pixels²).
+    Leading dimensions of P2/P3 (hypotheses) broadcast against the tracks.
+    """
+    n = x.shape[1]
+    p1 = np.concatenate([x[0], np.ones((n, 1))], axis=1)
+    projections = []
+    numerator = 0.0
+    denominator = 0.0
+    for view, P in ((1, P2), (2, P3)):
+        c = p1 @ np.swapaxes(P[..., :, :3], -1, -2)  # A x1, (..., n, 3)
+        d = P[..., None, :, 3]  # a4, (..., 1, 3)
+        cx = _cross_with_point(x[view], c)
+        dx = _cross_with_point(x[view], d)
+        numerator = numerator + (cx * dx).sum(axis=-1)
+        denominator = denominator + (dx * dx).sum(axis=-1)
+        projections.append((c, d))
+    rho = -numerator / np.maximum(denominator, 1e-300)
+    errors = 0.0
+    for view, (c, d) in zip((1, 2), projections, strict=True):
+        y = c + rho[..., None] * d
+        with np.errstate(divide="ignore", invalid="ignore"):
+            du = (y[..., 0] / y[..., 2] - x[view][:, 0]) * pixel_scale[0]
+            dv = (y[..., 1] / y[..., 2] - x[view][:, 1]) * pixel_scale[1]
+        errors = errors + du * du + dv * dv
+    return np.where(np.isfinite(errors), errors, np.inf)
+
+
+def _cross_with_point(point: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``(x, y, 1) × v`` for inhomogeneous points (n, 2) and vectors (..., n or 1, 3)."""
+    px, py = point[:, 0], point[:, 1]
+    v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack([py * v2 - v1, v0 - px * v2, px * v1 - py * v0], axis=-1)
+
+
+def estimate_triplet_tensor(
+    image_ids: tuple[int, int, int],
+    x_px: np.ndarray,
+    K0: np.ndarray,
+    rng: np.random.Generator,
+    options: TensorEstimationOptions | None = None,
+) -> TripletTensor | None:
+    """MSAC + Gold Standard tensor for one triplet.
+
+    Args:
+        image_ids: the database image ids of views 1, 2, 3.
+        x_px: tracks (3, n, 2) in undistorted pixel coordinates (COLMAP convention).
+        K0: prior intrinsics (3x3) used to normalise coordinates.
+        rng: random generator (the result is reproducible for a seeded generator).
+        options: estimation settings.
+
+    Returns:
+        The refined tensor, or None when fewer than ``min_inliers`` tracks agree.
+    """
+    options = options or TensorEstimationOptions()
+    n = x_px.shape[1]
+    if n < max(options.min_inliers, MINIMAL_SAMPLE):
+        return None
+    pixel_scale = np.array([K0[0, 0], K0[1, 1]])
+    homogeneous = np.concatenate([x_px, np.ones((3, n, 1))], axis=2)
+    x = (homogeneous @ np.linalg.inv(K0).T)[..., :2]
+    threshold2 = options.inlier_threshold_px**2
+
+    samples = np.argpartition(rng.random((options.num_hypotheses, n)), MINIMAL_SAMPLE, axis=1)
+    hypotheses = linear_tensor(*(x[view][samples[:, :MINIMAL_SAMPLE]] for view in range(3)))
+    P2h, P3h = cameras_from_tensor(hypotheses)
+    calibrated = calibrated_hypothesis(x, options.inlier_threshold_px / pixel_scale.mean())
+    if calibrated is not None:
+        P2h = np.concatenate([P2h, calibrated[0][None]])
+        P3h = np.concatenate([P3h, calibrated[1][None]])
+    scored = _subset(np.ones(n, dtype=bool), options.max_scored_tracks, rng)
+    errors = transfer_errors(x[:, scored], P2h, P3h, pixel_scale)
+    best = int(np.argmin(np.minimum(errors, threshold2).sum(axis=1)))
+    inliers = transfer_errors(x, P2h[best], P3h[best], pixel_scale) < threshold2
+    if inliers.sum() < options.min_inliers:
+        return None
+    P2, P3 = P2h[best], P3h[best]
+    result: ProjectiveBAResult | None = None
+    for _ in range(options.refinement_rounds):
+        used = _subset(inliers, options.max_refined_tracks, rng)
+        result = refine_triplet(
+            x[:, used], P2, P3, pixel_scale, max_iterations=options.max_ba_iterations
+        )
+        if not (np.all(np.isfinite(result.camera_covariance)) and np.isfinite(result.sigma)):
+            return None
+        P2, P3 = result.P2, result.P3
+        new_inliers = transfer_errors(x, P2, P3, pixel_scale) < threshold2
+        if new_inliers.sum() < options.min_inliers:
+            return None
+        converged = np.array_equal(new_inliers, inliers)
+        inliers = new_inliers
+        if converged:
+            break
+    assert result is not None
+    return TripletTensor(
+        image_ids=image_ids,
+        tensor=normalize_tensor(tensor_from_cameras(P2, P3)),
+        P2=P2,
+        P3=P3,
+        camera_covariance=result.camera_covariance,
+        num_tracks=n,
+        num_inliers=int(inliers.sum()),
+        sigma_px=result.sigma,
+        inliers=inliers,
+    )
+
+
+def _subset(mask: np.ndarray, size: int, rng: np.random.Generator) -> np.ndarray:
+    """Indices of at most ``size`` randomly chosen true entries of ``mask``, sorted."""
+    indices = np.flatnonzero(mask)
+    if len(indices) <= size:
+        return indices
+    return np.sort(rng.choice(indices, size=size, replace=False))
+
+
+def calibrated_hypothesis(
+    x: np.ndarray, threshold: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Cameras ``[R2|t2]``, ``[R3|t3]`` of a triplet from prior-normalised tracks x (3, n, 2).
+
+    Views 1-2: essential matrix (OpenCV 5-point RANSAC) and the cheirality check;
+    view 3: PnP RANSAC (SQPnP) on the tracks triangulated from views 1-2.
+    ``threshold`` is the inlier threshold in normalised units (pixels / focal).
+    Returns None where OpenCV finds no solution.
+    """
+    identity = np.eye(3)
+    x1, x2, x3 = (np.ascontiguousarray(x[view]) for view in range(3))
+    E, mask = cv2.findEssentialMat(
+        x1, x2, identity, method=cv2.RANSAC, prob=0.999, threshold=threshold
+    )
+    if E is None or E.shape != (3, 3):
+        return None
+    _, R2, t2, pose_mask = cv2.recoverPose(E, x1, x2, identity, mask=mask.copy())
+    P2 = np.hstack([R2, t2])
+    good = pose_mask.ravel() > 0
+    if good.sum() < 6:
+        return None
+    X = cv2.triangulatePoints(np.eye(3, 4), P2, x1[good].T, x2[good].T)
+    X = (X[:3] / X[3]).T
+    ok, rvec, tvec, _ = cv2.solvePnPRansac(
+        X, x3[good], identity, None, reprojectionError=threshold, flags=cv2.SOLVEPNP_SQPNP
+    )
+    if not ok:
+        return None
+    P3 = np.hstack([cv2.Rodrigues(rvec)[0], tvec.reshape(3, 1)])
+    return P2, P3

@@ -1,0 +1,203 @@
+"""Trifocal tensor algebra, vectorised over leading batch dimensions.
+
+Conventions (Hartley & Zisserman, ch. 15):
+
+* Cameras ``P1 = [I | 0]``, ``P2 = [A | a4]``, ``P3 = [B | b4]`` (3x4 each).
+* A tensor is an array ``T[..., i, j, k]`` of shape ``(..., 3, 3, 3)`` whose
+  *correlation slices* are ``T_i = T[..., i, :, :] = a_i b4ᵀ − a4 b_iᵀ``
+  (``a_i``, ``b_i`` the i-th columns of A and B).
+* Point–point–point incidence: ``[x']× (Σ_i x^i T_i) [x'']× = 0``; the
+  point–line–line form used for estimation is ``l'_j l''_k Σ_i x^i T_i^{jk} = 0``.
+* Calibrating a tensor measured in pixels with intrinsics K (3x3, upper
+  triangular ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``) gives the tensor of the
+  normalised cameras: ``T̂_i = Σ_j K[j, i] · K⁻¹ T_j K⁻ᵀ``, then scaled to unit
+  Frobenius norm.
+* The 15 quartic constraints (Martyushev 2017, as written in the TrifocalCalib
+  paper) vanish exactly on calibrated tensors; they are homogeneous of degree 4,
+  so their value depends on the tensor scale (we always use unit Frobenius norm)
+  but not on its sign.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+CYCLIC = ((0, 1, 2), (1, 2, 0), (2, 0, 1))
+NUM_CONSTRAINTS = 15
+#: Codimension of the calibrated-tensor variety inside projective tensors
+#: (18 dof of a trifocal tensor minus 11 of three calibrated cameras up to scale):
+#: the number of independent constraints at a regular point.
+CONSTRAINT_RANK = 7
+
+
+def tensor_from_cameras(P2: np.ndarray, P3: np.ndarray) -> np.ndarray:
+    """Tensor of ``P1 = [I|0]``, P2, P3: ``T_i = a_i b4ᵀ − a4 b_iᵀ``.
+
+    Args:
+        P2, P3: camera matrices of shape (..., 3, 4).
+
+    Returns:
+        Tensor of shape (..., 3, 3, 3), not normalised.
+    """
+    A, a4 = P2[..., :, :3], P2[..., :, 3]
+    B, b4 = P3[..., :, :3], P3[..., :, 3]
+    return np.einsum("...ji,...k->...ijk", A, b4) - np.einsum("...j,...ki->...ijk", a4, B)
+
+
+def normalize_tensor(T: np.ndarray) -> np.ndarray:
+    """Scale each tensor of shape (..., 3, 3, 3) to unit Frobenius norm."""
+    norm = np.sqrt(np.einsum("...ijk,...ijk->...", T, T))
+    return T / norm[..., None, None, None]
+
+
+def _null_vector(M: np.ndarray) -> np.ndarray:
+    """Unit right null vector (smallest singular vector) of each (..., m, n) matrix."""
+    return np.linalg.svd(M)[2][..., -1, :]
+
+
+def epipoles_from_tensor(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Epipoles e' (in view 2) and e'' (in view 3) of tensors (..., 3, 3, 3), unit norm.
+
+    e' is orthogonal to the left null vectors of the three slices, e'' to the
+    right null vectors (H&Z Algorithm 15.1).
+    """
+    left = _null_vector(np.swapaxes(T, -1, -2))  # u_i with u_iᵀ T_i = 0, shape (..., 3, 3)
+    right = _null_vector(T)  # v_i with T_i v_i = 0
+    return _null_vector(left), _null_vector(right)
+
+
+def cameras_from_tensor(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cameras P2, P3 (..., 3, 4) compatible with ``P1 = [I|0]`` (H&Z Algorithm 15.1)."""
+    e2, e3 = epipoles_from_tensor(T)
+    A = np.einsum("...ijk,...k->...ji", T, e3)  # column i = T_i e''
+    TtE = np.einsum("...ijk,...j->...ki", T, e2)  # column i = T_iᵀ e'
+    proj = np.einsum("...a,...b->...ab", e3, e3) - np.eye(3)
+    B = proj @ TtE
+    P2 = np.concatenate([A, e2[..., :, None]], axis=-1)
+    P3 = np.concatenate([B, e3[..., :, None]], axis=-1)
+    return P2, P3
+
+
+def point_line_line_rows(x1: np.ndarray, x2: np.ndarray, x3: np.ndarray) -> np.ndarray:
+    """Rows of the linear system ``A · vec(T) = 0`` for point correspondences.
+
+    Each correspondence gives four equations, from the horizontal and vertical
+    lines through x' and x'' (``l = (1, 0, −x)``, ``(0, 1, −y)``).
+
+    Args:
+        x1, x2, x3: inhomogeneous points (..., n, 2) in views 1, 2, 3.
+
+    Returns:
+        Array (..., n, 4, 27); ``vec(T)`` is ``T.reshape(27)`` (index i*9 + j*3 + k).
+    """
+    ones = np.ones(x1.shape[:-1] + (1,))
+    p1 = np.concatenate([x1, ones], axis=-1)
+    lines2 = _axis_lines(x2)  # (..., n, 2, 3)
+    lines3 = _axis_lines(x3)
+    rows = np.einsum("...i,...aj,...bk->...abijk", p1, lines2, lines3)
+    return rows.reshape(x1.shape[:-1] + (4, 27))
+
+
+def _axis_lines(x: np.ndarray) -> np.ndarray:
+    """The vertical and horizontal lines (..., 2, 3) through inhomogeneous points (..., 2)."""
+    lines = np.zeros(x.shape[:-1] + (2, 3))
+    lines[..., 0, 0] = 1.0
+    lines[..., 0, 2] = -x[..., 0]
+    lines[..., 1, 1] = 1.0
+    lines[..., 1, 2] = -x[..., 1]
+    return lines
+
+
+def linear_tensor(x1: np.ndarray, x2: np.ndarray, x3: np.ndarray) -> np.ndarray:
+    """Least-squares linear tensor from n ≥ 7 correspondences (..., n, 2) per view.
+
+    The caller normalises the coordinates (here: intrinsics-normalised points,
+    which are centred and of unit scale). Batch dimensions are solved at once.
+    The result satisfies no internal constraint; see :func:`cameras_from_tensor`
+    for a geometrically valid tensor.
+    """
+    rows = point_line_line_rows(x1, x2, x3)
+    system = rows.reshape(rows.shape[:-3] + (-1, 27))
+    # full_matrices=False: U of a (4n x 27) system would be 4n x 4n otherwise.
+    vt = np.linalg.svd(system, full_matrices=False)[2]
+    return vt[..., -1, :].reshape(rows.shape[:-3] + (3, 3, 3))
+
+
+def calibrate_tensor(T: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Tensor of normalised cameras: ``T̂_i = Σ_j K[j,i] K⁻¹ T_j K⁻ᵀ``, unit Frobenius norm.
+
+    Args:
+        T: tensors (..., 3, 3, 3) in the image coordinates that K maps to.
+        K: intrinsics (..., 3, 3), broadcast against T's batch dimensions.
+    """
+    K_inv = np.linalg.inv(K)
+    inner = np.einsum("...ab,...jbc,...dc->...jad", K_inv, T, K_inv)
+    return normalize_tensor(np.einsum("...ji,...jad->...iad", K, inner))
+
+
+def _psi(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """ψ(X, Y) = tr X tr Y − 2 tr(XY) for stacks of 3x3 matrices."""
+    return _trace(X) * _trace(Y) - 2.0 * np.einsum("...ab,...ba->...", X, Y)
+
+
+def _trace(X: np.ndarray) -> np.ndarray:
+    return np.einsum("...aa->...", X)
+
+
+def quartic_constraints(T: np.ndarray) -> np.ndarray:
+    """The 15 quartic constraints of a calibrated trifocal tensor.
+
+    With ``U_k = T_k T_kᵀ`` and ``V_k = T_k T_{k+1}ᵀ + T_{k+1} T_kᵀ`` (k cyclic):
+    for each cyclic relabelling (1,2,3) → (a,b,c) of the slices,
+
+    * ψ(U_c − U_a, U_c − U_a) − ψ(V_c, V_c)
+    * ψ(U_c − U_a, V_a) + ψ(V_b, V_c)
+    * ψ(U_a − U_b, V_a)
+    * tr(U_b)² − tr(V_c)² − tr(U_b² − V_c² + (U_c − U_a)²)
+    * tr(V_b) tr(U_a − 2U_b − U_c) − tr(V_a) tr(V_c) + 2 tr(V_b U_b)
+
+    Args:
+        T: tensors (..., 3, 3, 3), normally of unit Frobenius norm.
+
+    Returns:
+        Constraint values (..., 15); zero for calibrated tensors.
+    """
+    U = np.einsum("...kab,...kcb->...kac", T, T)
+    T_next = np.roll(T, -1, axis=-3)
+    TTn = np.einsum("...kab,...kcb->...kac", T, T_next)
+    V = TTn + np.swapaxes(TTn, -1, -2)
+    values = []
+    for a, b, c in CYCLIC:
+        Ua, Ub, Uc = U[..., a, :, :], U[..., b, :, :], U[..., c, :, :]
+        Va, Vb, Vc = V[..., a, :, :], V[..., b, :, :], V[..., c, :, :]
+        D = Uc - Ua
+        values.append(_psi(D, D) - _psi(Vc, Vc))
+        values.append(_psi(D, Va) + _psi(Vb, Vc))
+        values.append(_psi(Ua - Ub, Va))
+    for a, b, c in CYCLIC:
+        Ua, Ub, Uc = U[..., a, :, :], U[..., b, :, :], U[..., c, :, :]
+        Va, Vb, Vc = V[..., a, :, :], V[..., b, :, :], V[..., c, :, :]
+        D = Uc - Ua
+        values.append(
+            _trace(Ub) ** 2
+            - _trace(Vc) ** 2
+            - _trace(Ub @ Ub - Vc @ Vc + D @ D)
+        )
+        values.append(
+            _trace(Vb) * _trace(Ua - 2.0 * Ub - Uc)
+            - _trace(Va) * _trace(Vc)
+            + 2.0 * _trace(Vb @ Ub)
+        )
+    return np.stack(values, axis=-1)
+
+
+def intrinsics_matrix(params: np.ndarray) -> np.ndarray:
+    """K (..., 3, 3) from (..., 4) = (fx, fy, cx, cy)."""
+    params = np.asarray(params, dtype=float)
+    K = np.zeros(params.shape[:-1] + (3, 3))
+    K[..., 0, 0] = params[..., 0]
+    K[..., 1, 1] = params[..., 1]
+    K[..., 0, 2] = params[..., 2]
+    K[..., 1, 2] = params[..., 3]
+    K[..., 2, 2] = 1.0
+    return K
