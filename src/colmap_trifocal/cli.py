@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from . import __version__
+from .demo import format_demo, run_demo
 from .errors import CalibrationError
 from .log import logger
 from .pipeline import METHODS, CalibrationOptions, calibrate_database, parse_prior
@@ -48,8 +49,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FX,FY,CX,CY",
         help="starting intrinsics in pixels (default: the camera stored in the database)",
     )
-    calibrate.add_argument("--camera-id", type=int, action="append", dest="camera_ids",
-                           metavar="ID", help="calibrate only this camera (repeatable)")
+    calibrate.add_argument(
+        "--camera-id",
+        type=int,
+        action="append",
+        dest="camera_ids",
+        metavar="ID",
+        help="calibrate only this camera (repeatable)",
+    )
     calibrate.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     calibrate.add_argument("--json", type=Path, metavar="OUT", help="write the results as JSON")
     calibrate.add_argument(
@@ -59,6 +66,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     calibrate.add_argument("--max-triplets", type=int, default=CalibrationOptions.max_triplets)
     calibrate.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+    demo = commands.add_parser(
+        "demo", help="calibrate a synthetic database with a known camera (no download)"
+    )
+    demo.add_argument("--seed", type=int, default=0)
+    demo.add_argument("--method", choices=METHODS, default="msac-opt")
+    demo.add_argument("--keep", type=Path, metavar="DIR", help="keep the demo database in DIR")
     return parser
 
 
@@ -86,16 +100,23 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     if args.json is not None and not args.json.parent.is_dir():
         raise CalibrationError(f"cannot write --json: folder {args.json.parent} does not exist")
     results = calibrate_database(args.database, options)
-    print(f"{'camera':>6} {'model':<14} {'method':<11} {'fx':>10} {'fy':>10} {'cx':>10} "
-          f"{'cy':>10} {'triplets':>9} {'time':>7}")
+    print(
+        f"{'camera':>6} {'model':<14} {'method':<11} {'fx':>10} {'fy':>10} {'cx':>10} "
+        f"{'cy':>10} {'triplets':>9} {'time':>7}"
+    )
     for r in results:
-        print(f"{r.camera_id:>6} {r.model:<14} {r.method:<11} {r.fx:>10.2f} {r.fy:>10.2f} "
-              f"{r.cx:>10.2f} {r.cy:>10.2f} {r.num_inlier_triplets:>4}/{r.num_triplets:<4} "
-              f"{r.seconds:>6.1f}s")
+        print(
+            f"{r.camera_id:>6} {r.model:<14} {r.method:<11} {r.fx:>10.2f} {r.fy:>10.2f} "
+            f"{r.cx:>10.2f} {r.cy:>10.2f} {r.num_inlier_triplets:>4}/{r.num_triplets:<4} "
+            f"{r.seconds:>6.1f}s"
+        )
         hidden = [name for name, ok in r.observable.items() if not ok]
         if hidden:
-            print(f"warning: camera {r.camera_id}: {', '.join(hidden)} not well determined "
-                  "by these images", file=sys.stderr)
+            print(
+                f"warning: camera {r.camera_id}: {', '.join(hidden)} not well determined "
+                "by these images",
+                file=sys.stderr,
+            )
     if args.json is not None:
         try:
             args.json.write_text(json.dumps([r.to_json() for r in results], indent=2) + "\n")
@@ -113,6 +134,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "calibrate":
             return _run_calibrate(args)
+        if args.command == "demo":
+            result = run_demo(seed=args.seed, workdir=args.keep, method=args.method)
+            print(format_demo(result))
+            return 0
     except CalibrationError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_INPUT_ERROR

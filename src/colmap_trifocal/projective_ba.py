@@ -116,7 +116,7 @@ def refine_triplet(
     pixel_scale: np.ndarray,
     points: np.ndarray | None = None,
     max_iterations: int = 30,
-    tolerance: float = 1e-8,
+    tolerance: float = 1e-4,
 ) -> ProjectiveBAResult:
     """Levenberg–Marquardt refinement of P2, P3 and the points of one triplet.
 

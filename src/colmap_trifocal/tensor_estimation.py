@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .projective_ba import ProjectiveBAResult, refine_triplet
+from .projective_ba import ProjectiveBAResult, initial_points, refine_triplet
 from .trifocal import cameras_from_tensor, linear_tensor, normalize_tensor, tensor_from_cameras
 
 MINIMAL_SAMPLE = 7
@@ -42,7 +42,7 @@ MINIMAL_SAMPLE = 7
 class TensorEstimationOptions:
     """Settings of the per-triplet estimation (pixels are those of the keypoints)."""
 
-    num_hypotheses: int = 100
+    num_hypotheses: int = 32
     #: A track is an inlier when its reprojection error over views 2 and 3,
     #: sqrt(e2² + e3²), is below this, in pixels. COLMAP verifies pairs at 4 px.
     inlier_threshold_px: float = 4.0
@@ -50,10 +50,10 @@ class TensorEstimationOptions:
     refinement_rounds: int = 2
     max_ba_iterations: int = 30
     #: Tracks on which the hypotheses are scored (a random subset).
-    max_scored_tracks: int = 1000
+    max_scored_tracks: int = 500
     #: Tracks used by the bundle adjustment (a random subset of the inliers).
     #: The covariance passed on accounts for how many were used.
-    max_refined_tracks: int = 800
+    max_refined_tracks: int = 500
 
 
 @dataclass
@@ -139,29 +139,38 @@ def estimate_triplet_tensor(
     x = (homogeneous @ np.linalg.inv(K0).T)[..., :2]
     threshold2 = options.inlier_threshold_px**2
 
+    scored = _subset(np.ones(n, dtype=bool), options.max_scored_tracks, rng)
     samples = np.argpartition(rng.random((options.num_hypotheses, n)), MINIMAL_SAMPLE, axis=1)
     hypotheses = linear_tensor(*(x[view][samples[:, :MINIMAL_SAMPLE]] for view in range(3)))
     P2h, P3h = cameras_from_tensor(hypotheses)
-    calibrated = calibrated_hypothesis(x, options.inlier_threshold_px / pixel_scale.mean())
+    calibrated = calibrated_hypothesis(
+        x[:, scored], options.inlier_threshold_px / pixel_scale.mean()
+    )
     if calibrated is not None:
         P2h = np.concatenate([P2h, calibrated[0][None]])
         P3h = np.concatenate([P3h, calibrated[1][None]])
-    scored = _subset(np.ones(n, dtype=bool), options.max_scored_tracks, rng)
     errors = transfer_errors(x[:, scored], P2h, P3h, pixel_scale)
     best = int(np.argmin(np.minimum(errors, threshold2).sum(axis=1)))
     inliers = transfer_errors(x, P2h[best], P3h[best], pixel_scale) < threshold2
     if inliers.sum() < options.min_inliers:
         return None
     P2, P3 = P2h[best], P3h[best]
+    points = initial_points(x, P2, P3)
+    # One random order for all rounds: later rounds refine mostly the same tracks,
+    # warm-started from their refined points.
+    order = rng.permutation(n)
     result: ProjectiveBAResult | None = None
     for _ in range(options.refinement_rounds):
-        used = _subset(inliers, options.max_refined_tracks, rng)
+        used = np.sort(order[inliers[order]][: options.max_refined_tracks])
         result = refine_triplet(
-            x[:, used], P2, P3, pixel_scale, max_iterations=options.max_ba_iterations
+            x[:, used], P2, P3, pixel_scale, points[used], options.max_ba_iterations
         )
         if not (np.all(np.isfinite(result.camera_covariance)) and np.isfinite(result.sigma)):
             return None
         P2, P3 = result.P2, result.P3
+        # Warm start of the next round: refined points where known, closed form elsewhere.
+        points = initial_points(x, P2, P3)
+        points[used] = result.points
         new_inliers = transfer_errors(x, P2, P3, pixel_scale) < threshold2
         if new_inliers.sum() < options.min_inliers:
             return None
@@ -191,9 +200,7 @@ def _subset(mask: np.ndarray, size: int, rng: np.random.Generator) -> np.ndarray
     return np.sort(rng.choice(indices, size=size, replace=False))
 
 
-def calibrated_hypothesis(
-    x: np.ndarray, threshold: float
-) -> tuple[np.ndarray, np.ndarray] | None:
+def calibrated_hypothesis(x: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray] | None:
     """Cameras ``[R2|t2]``, ``[R3|t3]`` of a triplet from prior-normalised tracks x (3, n, 2).
 
     Views 1-2: essential matrix (OpenCV 5-point RANSAC) and the cheirality check;

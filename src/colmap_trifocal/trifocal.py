@@ -178,11 +178,7 @@ def quartic_constraints(T: np.ndarray) -> np.ndarray:
         Ua, Ub, Uc = U[..., a, :, :], U[..., b, :, :], U[..., c, :, :]
         Va, Vb, Vc = V[..., a, :, :], V[..., b, :, :], V[..., c, :, :]
         D = Uc - Ua
-        values.append(
-            _trace(Ub) ** 2
-            - _trace(Vc) ** 2
-            - _trace(Ub @ Ub - Vc @ Vc + D @ D)
-        )
+        values.append(_trace(Ub) ** 2 - _trace(Vc) ** 2 - _trace(Ub @ Ub - Vc @ Vc + D @ D))
         values.append(
             _trace(Vb) * _trace(Ua - 2.0 * Ub - Uc)
             - _trace(Va) * _trace(Vc)

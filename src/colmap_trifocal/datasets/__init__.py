@@ -1,0 +1,1 @@
+"""Readers of datasets with ground-truth intrinsics."""
