@@ -120,6 +120,15 @@ def _sidecar(path: Path, suffix: str) -> Path:
 # --------------------------------------------------------------------------- reading
 
 
+def _backup_into(source: sqlite3.Connection, target: Path) -> None:
+    """Copy the database behind ``source`` into the file ``target`` (SQLite backup API)."""
+    out = sqlite3.connect(target)
+    try:
+        source.backup(out)
+    finally:
+        out.close()
+
+
 def _backup_readonly(path: Path, dst: Path, immutable: bool) -> None:
     """Check ``path`` for COLMAP tables and copy it to ``dst`` with the SQLite backup API.
 
@@ -133,11 +142,7 @@ def _backup_readonly(path: Path, dst: Path, immutable: bool) -> None:
         src = sqlite3.connect(uri, uri=True, timeout=_LOCK_TIMEOUT_S)
         try:
             _check_tables(src, path)
-            out = sqlite3.connect(dst)
-            try:
-                src.backup(out)
-            finally:
-                out.close()
+            _backup_into(src, dst)
         finally:
             src.close()
     except sqlite3.Error as exc:
@@ -343,11 +348,7 @@ def _make_backup(path: Path, con: sqlite3.Connection) -> Path:
     try:
         wal = _sidecar(path, "-wal")
         if wal.exists() and wal.stat().st_size > 0:
-            out = sqlite3.connect(target)
-            try:
-                con.backup(out)
-            finally:
-                out.close()
+            _backup_into(con, target)
         else:
             shutil.copyfile(path, target)
             shutil.copystat(path, target)

@@ -196,7 +196,10 @@ class ConstraintProblem:
         def fun(free: np.ndarray) -> np.ndarray:
             return (self.residuals(self.full_theta(free), active) * sqrt_w).ravel()
 
-        solution = least_squares(fun, self.free_theta(theta0), method="lm", xtol=1e-12)
+        # x_scale=1: θ is dimensionless and of one scale. scipy's default for "lm"
+        # ("jac") shrinks the first step to ~1/|J|, which stalls at the prior when
+        # the whitened residuals are huge (noise-free data).
+        solution = least_squares(fun, self.free_theta(theta0), method="lm", xtol=1e-12, x_scale=1.0)
         return self.full_theta(solution.x)
 
     def covariance(self, theta: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -256,7 +259,11 @@ def solve(
     tau: float = MSAC_TAU,
     irls_iterations: int = 10,
 ) -> SelfCalibrationResult:
-    """Run one TrifocalCalib variant (``direct``, ``msac``, ``msac-opt``) from the prior (θ = 0)."""
+    """Run one TrifocalCalib variant (``direct``, ``msac``, ``msac-opt``) from the prior (θ = 0).
+
+    With ``single_focal`` the tensors must have been normalised with a prior whose
+    fx0 == fy0 (θ0 = θ1 then means fx = fy); :func:`colmap_trifocal.pipeline` ensures it.
+    """
     theta0 = np.zeros(4)
     problem = ConstraintProblem.build(tensors, theta0, single_focal)
     n = len(tensors)

@@ -36,6 +36,7 @@ from .projective_ba import ProjectiveBAResult, initial_points, refine_triplet
 from .trifocal import cameras_from_tensor, linear_tensor, normalize_tensor, tensor_from_cameras
 
 MINIMAL_SAMPLE = 7
+MIN_TRACKS_TO_REFINE = 12
 
 
 @dataclass
@@ -47,7 +48,9 @@ class TensorEstimationOptions:
     #: sqrt(e2² + e3²), is below this, in pixels. COLMAP verifies pairs at 4 px.
     inlier_threshold_px: float = 4.0
     min_inliers: int = 30
-    refinement_rounds: int = 2
+    #: Bundle adjustment / inlier re-selection rounds at most (stops when the
+    #: inlier set no longer changes; usually after 2).
+    refinement_rounds: int = 5
     max_ba_iterations: int = 30
     #: Tracks on which the hypotheses are scored (a random subset).
     max_scored_tracks: int = 500
@@ -152,7 +155,9 @@ def estimate_triplet_tensor(
     errors = transfer_errors(x[:, scored], P2h, P3h, pixel_scale)
     best = int(np.argmin(np.minimum(errors, threshold2).sum(axis=1)))
     inliers = transfer_errors(x, P2h[best], P3h[best], pixel_scale) < threshold2
-    if inliers.sum() < options.min_inliers:
+    # Refinement can grow a small initial consensus (a prior far off, heavy noise),
+    # so min_inliers is only checked after it; the BA needs a few tracks to start.
+    if inliers.sum() < MIN_TRACKS_TO_REFINE:
         return None
     P2, P3 = P2h[best], P3h[best]
     points = initial_points(x, P2, P3)
@@ -172,13 +177,15 @@ def estimate_triplet_tensor(
         points = initial_points(x, P2, P3)
         points[used] = result.points
         new_inliers = transfer_errors(x, P2, P3, pixel_scale) < threshold2
-        if new_inliers.sum() < options.min_inliers:
+        if new_inliers.sum() < MIN_TRACKS_TO_REFINE:
             return None
         converged = np.array_equal(new_inliers, inliers)
         inliers = new_inliers
         if converged:
             break
     assert result is not None
+    if inliers.sum() < options.min_inliers:
+        return None
     return TripletTensor(
         image_ids=image_ids,
         tensor=normalize_tensor(tensor_from_cameras(P2, P3)),

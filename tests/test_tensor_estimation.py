@@ -1,0 +1,222 @@
+"""Tests of the robust per-triplet tensor estimation on synthetic scenes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from colmap_trifocal.projective_ba import refine_triplet
+from colmap_trifocal.synthetic import SyntheticScene, make_scene, perturbed_prior, triplet_tensors
+from colmap_trifocal.tensor_estimation import (
+    TensorEstimationOptions,
+    TripletTensor,
+    estimate_triplet_tensor,
+    transfer_errors,
+)
+from colmap_trifocal.trifocal import (
+    cameras_from_tensor,
+    intrinsics_matrix,
+    linear_tensor,
+    normalize_tensor,
+    quartic_constraints,
+    tensor_from_cameras,
+)
+
+VIEWS = (0, 1, 2)
+UNIFORM_STD = 1.0 / np.sqrt(3.0)  # std of U(−1, 1)
+
+
+def sign_free_error(A: np.ndarray, B: np.ndarray) -> float:
+    """max |A − ±B| of two tensors."""
+    return float(min(np.abs(A - B).max(), np.abs(A + B).max()))
+
+
+def normalised_tracks(scene: SyntheticScene, K0: np.ndarray, views=VIEWS) -> np.ndarray:
+    """Prior-normalised tracks ``K0⁻¹ x`` (3, n, 2) of ``views``."""
+    x = scene.observations[list(views)]
+    homogeneous = np.concatenate([x, np.ones(x.shape[:-1] + (1,))], axis=-1)
+    return (homogeneous @ np.linalg.inv(K0).T)[..., :2]
+
+
+def estimate(
+    noise_px: float, outlier_ratio: float = 0.0, seed: int = 0, num_points: int = 500
+) -> tuple[SyntheticScene, np.ndarray, TripletTensor | None]:
+    """A 3-camera scene, its ±5 % prior K0 and the tensor estimated from all its tracks."""
+    rng = np.random.default_rng(seed)
+    scene = make_scene(num_points, 3, noise_px, outlier_ratio, seed=rng)
+    K0 = intrinsics_matrix(perturbed_prior(scene.intrinsics, 0.05, rng))
+    return scene, K0, estimate_triplet_tensor(VIEWS, scene.observations, K0, rng)
+
+
+@pytest.fixture(scope="module")
+def noise_free() -> tuple[SyntheticScene, np.ndarray, TripletTensor | None]:
+    return estimate(0.0)
+
+
+@pytest.fixture(scope="module")
+def noisy() -> tuple[SyntheticScene, np.ndarray, TripletTensor | None]:
+    return estimate(0.5, seed=1)
+
+
+def test_synthetic_tracks_are_consistent() -> None:
+    """The true cameras reproject the noise-free tracks exactly (sanity of the harness)."""
+    scene = make_scene(200, 3, seed=2)
+    K0 = intrinsics_matrix(perturbed_prior(scene.intrinsics, 0.05, 3))
+    P = scene.camera_matrices(np.linalg.solve(K0, scene.K))
+    P = P @ np.linalg.inv(np.vstack([P[0], [0.0, 0.0, 0.0, 1.0]]))
+    errors = transfer_errors(normalised_tracks(scene, K0), P[1], P[2], K0[[0, 1], [0, 1]])
+    assert errors.shape == (200,)
+    assert np.sqrt(errors.max()) < 1e-8
+    T = scene.true_tensor(VIEWS, K0)
+    assert sign_free_error(T, normalize_tensor(tensor_from_cameras(P[1], P[2]))) < 1e-14
+    # With the true K the tensor is calibrated.
+    assert np.abs(quartic_constraints(scene.true_tensor(VIEWS))).max() < 1e-12
+
+
+def test_noise_free_tensor_is_exact(noise_free) -> None:
+    scene, K0, result = noise_free
+    assert result is not None
+    assert result.image_ids == VIEWS
+    assert result.num_tracks == result.num_inliers == scene.num_points
+    assert result.inliers.all()
+    assert sign_free_error(result.tensor, scene.true_tensor(VIEWS, K0)) < 1e-6
+    assert result.sigma_px < 1e-6
+    # The tensor is that of the returned cameras, unit norm.
+    assert np.linalg.norm(result.tensor) == pytest.approx(1.0)
+    own = normalize_tensor(tensor_from_cameras(result.P2, result.P3))
+    assert sign_free_error(result.tensor, own) < 1e-14
+    assert result.camera_covariance.shape == (24, 24)
+
+
+def test_noisy_sigma_matches_the_pixel_noise(noisy) -> None:
+    """σ of the Gold Standard fit ≈ std of U(−0.5, 0.5) px = 0.29 px, within 30 %."""
+    scene, K0, result = noisy
+    assert result is not None
+    assert result.num_inliers >= 0.98 * scene.num_points
+    assert result.sigma_px == pytest.approx(0.5 * UNIFORM_STD, rel=0.3)
+    # Accurate to the level expected for 500 tracks at 0.3 px (measured ~4e-4).
+    assert sign_free_error(result.tensor, scene.true_tensor(VIEWS, K0)) < 3e-3
+    covariance = result.camera_covariance
+    assert np.all(np.isfinite(covariance))
+    np.testing.assert_allclose(covariance, covariance.T, atol=1e-12 * np.abs(covariance).max())
+    assert np.linalg.eigvalsh(covariance).min() > -1e-9 * np.abs(covariance).max()
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_outlier_tracks_are_excluded(seed: int) -> None:
+    """30 % of the tracks have one random observation: recall and precision > 95 %."""
+    scene, _, result = estimate(0.5, outlier_ratio=0.3, seed=seed)
+    assert result is not None
+    clean = ~scene.outliers_in(VIEWS)
+    assert np.count_nonzero(~clean) == 150
+    true_positives = np.count_nonzero(result.inliers & clean)
+    assert true_positives / np.count_nonzero(clean) > 0.95  # recall
+    assert true_positives / np.count_nonzero(result.inliers) > 0.95  # precision
+    assert result.sigma_px == pytest.approx(0.5 * UNIFORM_STD, rel=0.3)
+
+
+def test_outliers_of_other_views_are_inliers_of_a_triplet() -> None:
+    """In a 4-camera scene, a track corrupted in view 3 is clean for triplet (0, 1, 2)."""
+    scene = make_scene(300, 4, 0.0, 0.3, seed=4)
+    views = (0, 1, 2)
+    assert np.array_equal(scene.outliers_in(views), np.isin(scene.outlier_views, views))
+    assert np.count_nonzero(scene.outliers & ~scene.outliers_in(views)) > 0
+    K0 = scene.K
+    errors = transfer_errors(
+        normalised_tracks(scene, K0, views), *_true_cameras(scene, K0, views), np.ones(2)
+    )
+    assert np.all(errors[~scene.outliers_in(views)] < 1e-16)
+
+
+def _true_cameras(
+    scene: SyntheticScene, K0: np.ndarray, views=VIEWS
+) -> tuple[np.ndarray, np.ndarray]:
+    """True P2, P3 in K0-normalised coordinates with P1 = [I|0]."""
+    P = scene.camera_matrices(np.linalg.solve(K0, scene.K))[list(views)]
+    P = P @ np.linalg.inv(np.vstack([P[0], [0.0, 0.0, 0.0, 1.0]]))
+    return P[1], P[2]
+
+
+def test_projective_ba_does_not_increase_the_cost(noisy) -> None:
+    scene, K0, _ = noisy
+    x = normalised_tracks(scene, K0)
+    scale = K0[[0, 1], [0, 1]]
+    # Start from the (inaccurate) linear tensor of 50 tracks.
+    P2, P3 = cameras_from_tensor(linear_tensor(*x[:, :50]))
+    start = refine_triplet(x, P2, P3, scale, max_iterations=0)
+    refined = refine_triplet(x, P2, P3, scale)
+    assert refined.squared_errors.sum() <= start.squared_errors.sum()
+    # It reaches (at least) the cost of the true cameras and a noise estimate of 0.29 px.
+    P2_true, P3_true = _true_cameras(scene, K0)
+    at_truth = refine_triplet(x, P2_true, P3_true, scale, max_iterations=0)
+    assert refined.squared_errors.sum() <= at_truth.squared_errors.sum() * (1 + 1e-9)
+    assert refined.sigma == pytest.approx(0.5 * UNIFORM_STD, rel=0.3)
+    # Refining an optimum again does not move the cost.
+    again = refine_triplet(x, refined.P2, refined.P3, scale, points=refined.points)
+    assert again.squared_errors.sum() <= refined.squared_errors.sum() * (1 + 1e-12)
+
+
+def test_too_few_tracks_give_none() -> None:
+    scene = make_scene(20, 3, seed=5)
+    K0 = scene.K
+    rng = np.random.default_rng(0)
+    assert estimate_triplet_tensor(VIEWS, scene.observations, K0, rng) is None
+    options = TensorEstimationOptions(min_inliers=10)
+    assert estimate_triplet_tensor(VIEWS, scene.observations, K0, rng, options) is not None
+
+
+def test_seeded_estimation_is_deterministic() -> None:
+    scene = make_scene(300, 3, noise_px=0.5, outlier_ratio=0.2, seed=6)
+    K0 = intrinsics_matrix(perturbed_prior(scene.intrinsics, 0.05, 7))
+    first = estimate_triplet_tensor(VIEWS, scene.observations, K0, np.random.default_rng(8))
+    second = estimate_triplet_tensor(VIEWS, scene.observations, K0, np.random.default_rng(8))
+    assert first is not None and second is not None
+    np.testing.assert_array_equal(first.tensor, second.tensor)
+    np.testing.assert_array_equal(first.camera_covariance, second.camera_covariance)
+    np.testing.assert_array_equal(first.inliers, second.inliers)
+    assert first.sigma_px == second.sigma_px
+
+
+def test_synthetic_scene_is_seeded() -> None:
+    a = make_scene(100, 4, noise_px=1.0, outlier_ratio=0.1, seed=9)
+    b = make_scene(100, 4, noise_px=1.0, outlier_ratio=0.1, seed=np.random.default_rng(9))
+    np.testing.assert_array_equal(a.observations, b.observations)
+    np.testing.assert_array_equal(a.outlier_views, b.outlier_views)
+    assert not np.array_equal(a.observations, make_scene(100, 4, 1.0, 0.1, seed=10).observations)
+
+
+def test_synthetic_scene_geometry() -> None:
+    scene = make_scene(400, 5, noise_px=0.5, outlier_ratio=0.25, seed=11)
+    m, n = scene.num_cameras, scene.num_points
+    assert scene.observations.shape == (m, n, 2)
+    np.testing.assert_allclose(
+        scene.rotations @ np.swapaxes(scene.rotations, 1, 2),
+        np.broadcast_to(np.eye(3), (m, 3, 3)),
+        atol=1e-12,
+    )
+    np.testing.assert_allclose(np.linalg.det(scene.rotations), 1.0)
+    distances = np.linalg.norm(scene.centers, axis=1)
+    assert np.all((distances > 5.4) & (distances < 6.6))
+    # Cameras look roughly at the origin, but not all exactly (general position).
+    to_origin = -scene.centers / distances[:, None]
+    angles = np.rad2deg(np.arccos(np.clip((scene.rotations[:, 2] * to_origin).sum(1), -1, 1)))
+    assert angles.max() <= 5.0 + 1e-9 and angles.min() > 0.0
+    # Points in the cube; exact projections in the image, noise bounded by 0.5 px.
+    assert np.abs(scene.points).max() <= 1.0
+    exact = scene.project()
+    assert np.all((exact >= 0) & (exact <= [scene.width, scene.height]))
+    clean = ~scene.outliers
+    assert np.abs(scene.observations[:, clean] - exact[:, clean]).max() <= 0.5
+    assert scene.outliers.sum() == 100
+    assert np.all(scene.outlier_views[scene.outliers] >= 0)
+    assert np.all(scene.outlier_views[clean] == -1)
+
+
+def test_triplet_tensors_cover_all_triplets() -> None:
+    scene = make_scene(200, 4, noise_px=0.2, seed=12)
+    prior = perturbed_prior(scene.intrinsics, 0.05, 13)
+    tensors = triplet_tensors(scene, prior, 14)
+    assert [t.image_ids for t in tensors] == [(0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3)]
+    K0 = intrinsics_matrix(prior)
+    for t in tensors:
+        assert sign_free_error(t.tensor, scene.true_tensor(t.image_ids, K0)) < 3e-3
