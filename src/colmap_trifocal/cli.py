@@ -15,8 +15,11 @@ from pathlib import Path
 from . import __version__
 from .demo import format_demo, run_demo
 from .errors import CalibrationError
+from .features import MATCHERS
 from .log import logger
 from .pipeline import METHODS, CalibrationOptions, calibrate_database, parse_prior
+from .reconstruction import REFINE_CHOICES
+from .workflow import RunOptions, format_report, run_pipeline
 
 EXIT_INPUT_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -67,6 +70,35 @@ def build_parser() -> argparse.ArgumentParser:
     calibrate.add_argument("--max-triplets", type=int, default=CalibrationOptions.max_triplets)
     calibrate.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
+    run = commands.add_parser(
+        "run", help="images -> features -> TrifocalCalib -> mapping -> bundle adjustment"
+    )
+    run.add_argument("images", type=Path, help="folder of images (ignored with --database)")
+    run.add_argument(
+        "workspace", type=Path, help="output folder: database.db, sparse/0, report.json"
+    )
+    run.add_argument("--max-image-size", type=int, default=RunOptions.max_image_size)
+    run.add_argument("--matcher", choices=MATCHERS, default=RunOptions.matcher)
+    run.add_argument(
+        "--camera-model",
+        default=RunOptions.camera_model,
+        help="COLMAP model of the new camera (default PINHOLE)",
+    )
+    run.add_argument("--method", choices=METHODS, default=RunOptions.method)
+    run.add_argument("--refine", choices=REFINE_CHOICES, default=RunOptions.refine)
+    run.add_argument("--seed", type=int, default=0)
+    run.add_argument("--database", type=Path, help="start from this database (it is copied)")
+    run.add_argument(
+        "--model",
+        type=Path,
+        help="existing COLMAP model (with --database): write the estimate, refine",
+    )
+    run.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the results of an earlier run in WORKSPACE",
+    )
+
     demo = commands.add_parser(
         "demo", help="calibrate a synthetic database with a known camera (no download)"
     )
@@ -77,6 +109,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _configure_logging(verbosity: int) -> None:
+    """Package log level from -v/-vv; COLMAP's own (glog) messages only with -vv."""
+    import pycolmap
+
+    pycolmap.logging.minloglevel = 0 if verbosity > 1 else 2  # 2: errors only
     if verbosity <= 0:
         return
     handler = logging.StreamHandler()
@@ -127,6 +163,26 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_pipeline(args: argparse.Namespace) -> int:
+    if args.max_image_size < 100:
+        raise CalibrationError("--max-image-size must be at least 100 pixels")
+    options = RunOptions(
+        max_image_size=args.max_image_size,
+        matcher=args.matcher,
+        camera_model=args.camera_model,
+        method=args.method,
+        refine=args.refine,
+        seed=args.seed,
+        database=args.database,
+        model=args.model,
+        overwrite=args.overwrite,
+        progress=sys.stderr.isatty(),
+    )
+    report = run_pipeline(args.images if args.database is None else None, args.workspace, options)
+    print(format_report(report))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``colmap-trifocal`` console script."""
     args = build_parser().parse_args(argv)
@@ -134,6 +190,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "calibrate":
             return _run_calibrate(args)
+        if args.command == "run":
+            return _run_pipeline(args)
         if args.command == "demo":
             result = run_demo(seed=args.seed, workdir=args.keep, method=args.method)
             print(format_demo(result))

@@ -1,0 +1,107 @@
+"""Incremental mapping from a calibrated database and bundle adjustment of the intrinsics.
+
+The TrifocalCalib estimate is the camera's starting intrinsics. Mapping keeps
+them fixed (a good calibration is what makes registration reliable); the
+optional final global bundle adjustment then refines focal lengths and the
+principal point together with poses and points (distortion stays fixed).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pycolmap
+
+from .errors import CalibrationError
+from .log import logger
+
+REFINE_CHOICES = ("none", "ba")
+
+
+@dataclass
+class CameraRefinement:
+    """Intrinsics before and after bundle adjustment for one camera (pixels)."""
+
+    camera_id: int
+    model: str
+    before: np.ndarray  # (4,) fx, fy, cx, cy written before mapping
+    after: np.ndarray  # (4,) after the final bundle adjustment (== before with refine none)
+    num_registered_images: int
+
+
+def camera_intrinsics(camera: pycolmap.Camera) -> np.ndarray:
+    """(fx, fy, cx, cy) of a pycolmap camera (fx = fy for single-focal models)."""
+    return np.array(
+        [
+            camera.focal_length_x,
+            camera.focal_length_y,
+            camera.principal_point_x,
+            camera.principal_point_y,
+        ]
+    )
+
+
+def incremental_mapping(
+    database: Path,
+    image_dir: Path | None,
+    output_dir: Path,
+    refine_intrinsics_while_mapping: bool = False,
+    seed: int = 0,
+) -> pycolmap.Reconstruction:
+    """pycolmap incremental mapping; returns the largest model, written to ``output_dir/0``.
+
+    Args:
+        database: COLMAP database with verified matches and the starting cameras.
+        image_dir: the images (only used for point colours; None: no colours).
+        output_dir: folder receiving the models (``0``, ``1``, ...; the largest first).
+        refine_intrinsics_while_mapping: let mapping's bundle adjustments refine
+            focal length and principal point (COLMAP's default refines focal only);
+            False keeps the cameras fixed at their starting values.
+        seed: random seed of the mapper.
+    """
+    options = pycolmap.IncrementalPipelineOptions()
+    options.random_seed = seed
+    options.ba_refine_focal_length = refine_intrinsics_while_mapping
+    options.ba_refine_principal_point = refine_intrinsics_while_mapping
+    options.ba_refine_extra_params = False
+    options.extract_colors = image_dir is not None
+    output_dir.mkdir(parents=True, exist_ok=True)
+    # pycolmap insists on an existing image folder even when colours are not extracted.
+    models = pycolmap.incremental_mapping(
+        database, image_dir if image_dir is not None else output_dir, output_dir, options
+    )
+    if not models:
+        raise CalibrationError("incremental mapping registered no images (no model)")
+    largest = max(models.values(), key=lambda r: r.num_reg_images())
+    logger.info(
+        "mapping: %d model(s), largest with %d registered images",
+        len(models),
+        largest.num_reg_images(),
+    )
+    return largest
+
+
+def refine_intrinsics(reconstruction: pycolmap.Reconstruction) -> None:
+    """Global bundle adjustment refining focal lengths and principal points (in place)."""
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = True
+    options.refine_principal_point = True
+    options.refine_extra_params = False
+    options.print_summary = False
+    pycolmap.bundle_adjustment(reconstruction, options)
+
+
+def mean_reprojection_error(reconstruction: pycolmap.Reconstruction) -> float:
+    """Mean reprojection error over all observations, pixels."""
+    return float(reconstruction.compute_mean_reprojection_error())
+
+
+def registered_images_per_camera(reconstruction: pycolmap.Reconstruction) -> dict[int, int]:
+    """camera_id -> number of registered images."""
+    counts: dict[int, int] = {}
+    for image in reconstruction.images.values():
+        if image.has_pose:
+            counts[image.camera_id] = counts.get(image.camera_id, 0) + 1
+    return counts

@@ -1,0 +1,223 @@
+"""``colmap-trifocal run``: images (or a database) in, calibrated reconstruction out.
+
+Stages, each timed in ``report.json``:
+
+1. features: pycolmap SIFT extraction and matching into ``WORKSPACE/database.db``
+   (skipped when an existing database is given: it is copied, never modified);
+2. calibrate: TrifocalCalib on that database, the estimate written as the
+   cameras' starting intrinsics;
+3. mapping: pycolmap incremental mapping with the intrinsics held fixed, the
+   largest model written to ``WORKSPACE/sparse/0`` (or an existing model given
+   with ``model``: the estimate is written into it instead);
+4. refine (``ba``, the default): global bundle adjustment of focal lengths and
+   principal points with poses and points; ``none`` skips it.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pycolmap
+
+from .database import read_database, write_intrinsics
+from .errors import CalibrationError
+from .features import build_database
+from .log import logger
+from .pipeline import PARAMETER_NAMES, CalibrationOptions, calibrate_contents
+from .reconstruction import (
+    REFINE_CHOICES,
+    camera_intrinsics,
+    incremental_mapping,
+    mean_reprojection_error,
+    refine_intrinsics,
+    registered_images_per_camera,
+)
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
+WORKSPACE_OUTPUTS = ("database.db", "sparse", "report.json")
+
+
+@dataclass
+class RunOptions:
+    """Settings of :func:`run_pipeline` (the flags of ``colmap-trifocal run``)."""
+
+    max_image_size: int = 1600
+    matcher: str = "exhaustive"
+    camera_model: str = "PINHOLE"
+    method: str = "msac-opt"
+    refine: str = "ba"
+    seed: int = 0
+    #: Start from this COLMAP database (copied into the workspace) instead of images.
+    database: Path | None = None
+    #: Start from this COLMAP model: write the estimate into it and refine.
+    model: Path | None = None
+    overwrite: bool = False
+    progress: bool = False
+
+
+def list_images(image_dir: Path) -> list[str]:
+    """Names of the readable images in ``image_dir`` (CalibrationError otherwise)."""
+    if not image_dir.is_dir():
+        raise CalibrationError(f"image folder not found: {image_dir}")
+    names = sorted(p.name for p in image_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not names:
+        raise CalibrationError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in {image_dir}")
+    for name in names:
+        if cv2.imread(str(image_dir / name), cv2.IMREAD_REDUCED_GRAYSCALE_8) is None:
+            raise CalibrationError(f"cannot read image {image_dir / name}")
+    if len(names) < 3:
+        raise CalibrationError(f"{image_dir} has {len(names)} image(s); at least 3 are needed")
+    return names
+
+
+def prepare_workspace(workspace: Path, overwrite: bool) -> None:
+    """Create the workspace; refuse one with other content unless ``overwrite``.
+
+    With ``overwrite`` only this tool's outputs are removed (database.db, sparse/,
+    report.json); other files are left alone.
+    """
+    if workspace.exists() and not workspace.is_dir():
+        raise CalibrationError(f"workspace is not a folder: {workspace}")
+    workspace.mkdir(parents=True, exist_ok=True)
+    if any(workspace.iterdir()):
+        if not overwrite:
+            raise CalibrationError(
+                f"workspace {workspace} is not empty (use --overwrite to replace its results)"
+            )
+        for name in WORKSPACE_OUTPUTS:
+            target = workspace / name
+            if target.is_dir():
+                shutil.rmtree(target)
+            elif target.exists():
+                target.unlink()
+
+
+def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> dict:
+    """Run all stages; returns the report (also written to ``WORKSPACE/report.json``)."""
+    if options.refine not in REFINE_CHOICES:
+        raise CalibrationError(
+            f"unknown --refine {options.refine!r} (choose from {REFINE_CHOICES})"
+        )
+    if options.model is not None and options.database is None:
+        raise CalibrationError("--model needs the --database its images were matched in")
+    names = list_images(images) if images is not None and options.database is None else None
+    prepare_workspace(workspace, options.overwrite)
+    database = workspace / "database.db"
+    seconds: dict[str, float] = {}
+
+    start = time.perf_counter()
+    if options.database is not None:
+        read_database(options.database)  # validates it (one-line errors) before copying
+        shutil.copyfile(options.database, database)
+    else:
+        assert images is not None and names is not None
+        build_database(
+            images,
+            database,
+            names,
+            max_image_size=options.max_image_size,
+            camera_model=options.camera_model,
+            matcher=options.matcher,
+        )
+    seconds["features"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    contents = read_database(database)
+    calibrations = calibrate_contents(
+        contents,
+        CalibrationOptions(method=options.method, seed=options.seed, progress=options.progress),
+    )
+    updated = {
+        c.camera_id: contents.cameras[c.camera_id].with_intrinsics(c.fx, c.fy, c.cx, c.cy)
+        for c in calibrations
+    }
+    write_intrinsics(database, updated, backup=False)  # our own copy in the workspace
+    seconds["calibrate"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    if options.model is not None:
+        reconstruction = pycolmap.Reconstruction(options.model)
+        for camera_id, camera in updated.items():
+            if camera_id in reconstruction.cameras:
+                reconstruction.cameras[camera_id].params = camera.params
+    else:
+        with tempfile.TemporaryDirectory(dir=workspace) as tmp:
+            reconstruction = incremental_mapping(database, images, Path(tmp), seed=options.seed)
+    seconds["mapping"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    if options.refine == "ba":
+        refine_intrinsics(reconstruction)
+    seconds["refine"] = time.perf_counter() - start
+
+    model_dir = workspace / "sparse" / "0"
+    model_dir.mkdir(parents=True, exist_ok=True)
+    reconstruction.write(model_dir)
+    report = build_report(reconstruction, calibrations, seconds, options)
+    (workspace / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    logger.info("wrote %s", workspace / "report.json")
+    return report
+
+
+def build_report(
+    reconstruction: pycolmap.Reconstruction,
+    calibrations: list,
+    seconds: dict[str, float],
+    options: RunOptions,
+) -> dict:
+    """The ``report.json`` content: per camera estimate, BA result, difference; timings."""
+    registered = registered_images_per_camera(reconstruction)
+    cameras = []
+    for calibration in calibrations:
+        camera_id = calibration.camera_id
+        refined = camera_intrinsics(reconstruction.cameras[camera_id])
+        estimate = calibration.intrinsics
+        cameras.append(
+            {
+                "camera_id": camera_id,
+                "model": calibration.model,
+                "trifocal": dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True)),
+                "trifocal_std": calibration.std,
+                "refined": dict(zip(PARAMETER_NAMES, map(float, refined), strict=True)),
+                "difference": dict(
+                    zip(PARAMETER_NAMES, map(float, refined - estimate), strict=True)
+                ),
+                "relative_difference": float(np.mean(np.abs(refined / estimate - 1))),
+                "num_registered_images": registered.get(camera_id, 0),
+            }
+        )
+    return {
+        "method": options.method,
+        "refine": options.refine,
+        "num_images": reconstruction.num_images(),
+        "num_registered_images": reconstruction.num_reg_images(),
+        "num_points3D": reconstruction.num_points3D(),
+        "mean_reprojection_error_px": mean_reprojection_error(reconstruction),
+        "cameras": cameras,
+        "seconds": seconds,
+    }
+
+
+def format_report(report: dict) -> str:
+    """Human-readable summary of a report: per camera estimate vs refined, and timings."""
+    lines = [
+        f"registered {report['num_registered_images']}/{report['num_images']} images, "
+        f"{report['num_points3D']} points, mean reprojection error "
+        f"{report['mean_reprojection_error_px']:.3f} px",
+        f"{'camera':>6} {'':>9} {'fx':>10} {'fy':>10} {'cx':>10} {'cy':>10}",
+    ]
+    for camera in report["cameras"]:
+        for label in ("trifocal", "refined", "difference"):
+            values = " ".join(f"{camera[label][name]:>10.2f}" for name in PARAMETER_NAMES)
+            lines.append(f"{camera['camera_id']:>6} {label:>9} {values}")
+    lines.append(
+        "seconds: " + ", ".join(f"{stage} {t:.1f}" for stage, t in report["seconds"].items())
+    )
+    return "\n".join(lines)
