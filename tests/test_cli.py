@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import sqlite3
 import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pycolmap
 import pytest
@@ -161,3 +163,19 @@ def test_demo_runs_the_pipeline(tmp_path: Path) -> None:
     report = json.loads((tmp_path / "demo" / "report.json").read_text())
     assert report["num_registered_images"] == 10
     assert set(report["seconds"]) == {"features", "calibrate", "mapping", "refine"}
+
+
+def test_show_renders_png(tmp_path: Path) -> None:
+    assert run("demo", "--keep", tmp_path).returncode == 0
+    png = tmp_path / "view.png"
+    result = run("show", tmp_path / "demo" / "sparse" / "0", "--png", png)
+    if result.returncode != 0 and "offscreen" in result.stderr and os.environ.get("CI") != "true":
+        pytest.skip(result.stderr.strip())
+    assert result.returncode == 0, result.stderr
+    image = cv2.imread(str(png))
+    assert image is not None and image.shape[2] == 3
+    assert (image < 250).any(axis=2).mean() > 0.002  # not a blank white background
+
+
+def test_show_missing_model(tmp_path: Path) -> None:
+    assert_one_line_error(run("show", tmp_path / "nope"), "nope")

@@ -99,6 +99,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="replace the results of an earlier run in WORKSPACE",
     )
 
+    show = commands.add_parser(
+        "show", help="Open3D view of a COLMAP model (points, camera frustums)"
+    )
+    show.add_argument("model", type=Path, help="COLMAP model folder, e.g. WORKSPACE/sparse/0")
+    show.add_argument("--png", type=Path, metavar="OUT", help="render offscreen to this PNG")
+
     demo = commands.add_parser(
         "demo", help="calibrate a synthetic database with a known camera (no download)"
     )
@@ -192,6 +198,13 @@ def main(argv: list[str] | None = None) -> int:
             return _run_calibrate(args)
         if args.command == "run":
             return _run_pipeline(args)
+        if args.command == "show":
+            from .visualize import show  # open3d is imported only for this command
+
+            written = show(args.model, args.png)
+            if written is not None:
+                print(f"wrote {written}")
+            return 0
         if args.command == "demo":
             result = run_demo(seed=args.seed, workdir=args.keep, method=args.method)
             print(format_demo(result))

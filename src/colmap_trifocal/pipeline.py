@@ -16,13 +16,13 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from .cameras import CameraInfo, check_supported, undistort_to_pinhole
 from .database import DatabaseContents, read_database, write_intrinsics
 from .errors import CalibrationError
 from .fundamental import calibrate_from_fundamentals
 from .log import logger
+from .parallel import map_jobs
 from .selfcalibration import MSAC_TAU, solve, theta_to_intrinsics
 from .tensor_estimation import TensorEstimationOptions, TripletTensor, estimate_triplet_tensor
 from .tracks import MatchGraph, select_triplets
@@ -46,12 +46,15 @@ class CalibrationOptions:
     camera_ids: list[int] | None = None
     seed: int = 0
     #: Triplets used per camera (the ones with most tracks).
-    max_triplets: int = 40
+    max_triplets: int = 30
     min_tracks: int = 40
     tau: float = MSAC_TAU
     tensor: TensorEstimationOptions = field(default_factory=TensorEstimationOptions)
     write: bool = False
     progress: bool = False
+    #: Processes estimating triplet tensors (None: one per core, at most 8).
+    #: Every triplet has its own seed, so the result does not depend on this.
+    workers: int | None = None
 
 
 @dataclass
@@ -191,18 +194,32 @@ def calibrate_camera(
             f"camera {camera.camera_id}: no image triplet with at least {options.min_tracks} "
             "three-view tracks"
         )
-    rng = np.random.default_rng(options.seed)
     K0 = intrinsics_matrix(prior)
-    tensors = []
-    for triplet in tqdm(
-        triplets, desc=f"camera {camera.camera_id}: tensors", disable=not options.progress
-    ):
-        tracks = np.stack(
-            [keypoints[i][triplet.keypoint_indices[:, v]] for v, i in enumerate(triplet.image_ids)]
+    jobs = [
+        (
+            triplet.image_ids,
+            np.stack(
+                [
+                    keypoints[i][triplet.keypoint_indices[:, v]]
+                    for v, i in enumerate(triplet.image_ids)
+                ]
+            ),
+            K0,
+            seed,
+            options.tensor,
         )
-        tensor = estimate_triplet_tensor(triplet.image_ids, tracks, K0, rng, options.tensor)
-        if tensor is not None:
-            tensors.append(tensor)
+        for triplet, seed in zip(
+            triplets, np.random.SeedSequence(options.seed).spawn(len(triplets)), strict=True
+        )
+    ]
+    estimated = map_jobs(
+        _estimate_job,
+        jobs,
+        options.workers,
+        f"camera {camera.camera_id}: tensors",
+        options.progress,
+    )
+    tensors = [t for t in estimated if t is not None]
     logger.info(
         "camera %d: %d of %d triplets gave a tensor", camera.camera_id, len(tensors), len(triplets)
     )
@@ -226,6 +243,14 @@ def calibrate_camera(
         seconds=time.perf_counter() - start,
         prior=tuple(map(float, prior)),  # type: ignore[arg-type]
         tensors=tensors,
+    )
+
+
+def _estimate_job(job: tuple) -> TripletTensor | None:
+    """One triplet's tensor; its own seed makes results independent of scheduling."""
+    image_ids, tracks, K0, seed, tensor_options = job
+    return estimate_triplet_tensor(
+        image_ids, tracks, K0, np.random.default_rng(seed), tensor_options
     )
 
 

@@ -179,7 +179,9 @@ def estimate_triplet_tensor(
         new_inliers = transfer_errors(x, P2, P3, pixel_scale) < threshold2
         if new_inliers.sum() < MIN_TRACKS_TO_REFINE:
             return None
-        converged = np.array_equal(new_inliers, inliers)
+        # Converged when at most 0.5 % of the tracks changed side: on real data a few
+        # borderline tracks flip at every round, so exact equality would never stop.
+        converged = np.count_nonzero(new_inliers != inliers) <= max(2, 0.005 * n)
         inliers = new_inliers
         if converged:
             break

@@ -1,0 +1,175 @@
+"""Tests of colmap_trifocal.visualize on a pycolmap synthetic reconstruction."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pycolmap
+import pytest
+from conftest import synthesize
+
+from colmap_trifocal import visualize
+from colmap_trifocal.errors import CalibrationError
+
+try:
+    import open3d as o3d
+except (ImportError, OSError) as exc:  # e.g. libusb-1.0-0 missing
+    if os.environ.get("CI", "").lower() == "true":
+        raise
+    pytest.skip(f"open3d cannot be imported: {exc}", allow_module_level=True)
+
+FAR_POINTS = np.array([[1e4, 0.0, 0.0], [0.0, -2e4, 0.0], [3e3, 3e3, 3e3]])
+
+
+def require_offscreen() -> None:
+    """Skip when open3d cannot render offscreen here; under CI=true fail instead."""
+    problem = visualize.offscreen_problem()
+    if problem is None:
+        return
+    message = f"offscreen rendering impossible here: {problem}"
+    if os.environ.get("CI", "").lower() == "true":
+        pytest.fail(message)
+    pytest.skip(message)
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, pycolmap.Reconstruction]:
+    """A written synthetic model (2 cameras x 5 frames, 1000 coloured points + 3 far ones)."""
+    folder = tmp_path_factory.mktemp("visualize")
+    reconstruction = synthesize(folder / "database.db", cameras=2, frames=5, points=1000)
+    rng = np.random.default_rng(0)
+    for point in reconstruction.points3D.values():
+        point.color = rng.integers(0, 256, 3).astype(np.uint8)
+    for xyz in FAR_POINTS:
+        reconstruction.add_point3D(xyz, pycolmap.Track(), np.array([255, 0, 0], np.uint8))
+    sparse = folder / "sparse" / "0"
+    sparse.mkdir(parents=True)
+    reconstruction.write(str(sparse))
+    return sparse, reconstruction
+
+
+def test_load_model_reads_binary_and_text(model, tmp_path: Path) -> None:
+    sparse, reconstruction = model
+    loaded = visualize.load_model(sparse)
+    assert loaded.num_points3D() == reconstruction.num_points3D()
+    assert sorted(loaded.reg_image_ids()) == sorted(reconstruction.reg_image_ids())
+    reconstruction.write_text(str(tmp_path))
+    assert visualize.load_model(tmp_path).num_reg_images() == reconstruction.num_reg_images()
+
+
+def test_load_model_missing_folder(tmp_path: Path) -> None:
+    with pytest.raises(CalibrationError, match="not found"):
+        visualize.load_model(tmp_path / "sparse" / "0")
+
+
+def test_load_model_not_a_model(tmp_path: Path) -> None:
+    with pytest.raises(CalibrationError, match="not a COLMAP model"):
+        visualize.load_model(tmp_path)
+    for name in ("cameras", "images", "points3D"):
+        (tmp_path / f"{name}.txt").write_text("garbage that is not a model\n")
+    with pytest.raises(CalibrationError) as error:
+        visualize.load_model(tmp_path)
+    assert "\n" not in str(error.value)
+
+
+def test_scene_geometry_points_and_colours(model) -> None:
+    _, reconstruction = model
+    geometries = visualize.scene_geometry(reconstruction)
+    clouds = [g for g in geometries if isinstance(g, o3d.geometry.PointCloud)]
+    assert len(clouds) == 1
+    xyz, rgb = np.asarray(clouds[0].points), np.asarray(clouds[0].colors)
+    total = reconstruction.num_points3D()
+    assert 0.95 * total <= len(xyz) <= total
+    # The far outliers are gone; every kept point carries its own colour, 0-255 -> 0-1.
+    assert np.abs(xyz).max() < 100
+    colour_of = {p.xyz.tobytes(): p.color for p in reconstruction.points3D.values()}
+    expected = np.array([colour_of[x.tobytes()] for x in xyz]) / 255.0
+    np.testing.assert_allclose(rgb, expected)
+
+
+def test_scene_geometry_frustums(model) -> None:
+    _, reconstruction = model
+    scale = 0.7
+    geometries = visualize.scene_geometry(reconstruction, frustum_scale=scale)
+    frustums = [g for g in geometries if isinstance(g, o3d.geometry.LineSet)]
+    image_ids = sorted(reconstruction.reg_image_ids())
+    assert len(frustums) == len(image_ids) == reconstruction.num_reg_images() > 0
+    for frustum, image_id in zip(frustums, image_ids, strict=True):
+        image = reconstruction.image(image_id)
+        camera = image.camera
+        vertices = np.asarray(frustum.points)
+        assert vertices.shape == (5, 3) and len(frustum.lines) == 8
+        np.testing.assert_allclose(vertices[0], image.projection_center(), atol=1e-9)
+        # Corners lie on the plane at depth `scale` and project to the image corners.
+        cam_from_world = image.cam_from_world()
+        in_cam = vertices[1:] @ cam_from_world.rotation.matrix().T + cam_from_world.translation
+        np.testing.assert_allclose(in_cam[:, 2], scale, rtol=1e-9)
+        w, h = camera.width, camera.height
+        np.testing.assert_allclose(
+            camera.img_from_cam(in_cam), [[0, 0], [w, 0], [w, h], [0, h]], atol=1e-6
+        )
+    # Registration order: first blue, last red, one colour per frustum.
+    np.testing.assert_allclose(np.asarray(frustums[0].colors), np.tile([0, 0, 1], (8, 1)))
+    np.testing.assert_allclose(np.asarray(frustums[-1].colors), np.tile([1, 0, 0], (8, 1)))
+
+
+def test_default_frustum_scale_follows_scene_size(model) -> None:
+    _, reconstruction = model
+    small = visualize.scene_geometry(reconstruction)[1]
+    reconstruction_x10 = pycolmap.Reconstruction(reconstruction)
+    reconstruction_x10.transform(pycolmap.Sim3d(10.0, pycolmap.Rotation3d(), np.zeros(3)))
+    large = visualize.scene_geometry(reconstruction_x10)[1]
+    size = np.ptp(np.asarray(small.points), axis=0).max()
+    assert size > 0
+    np.testing.assert_allclose(np.ptp(np.asarray(large.points), axis=0).max(), 10 * size)
+
+
+def _assert_not_blank(path: Path, width: int, height: int) -> None:
+    pixels = np.asarray(o3d.io.read_image(str(path)))
+    assert pixels.shape[:2] == (height, width)
+    rgb = pixels[..., :3].astype(float)
+    foreground = np.any(rgb < 250, axis=-1)  # background is white
+    assert foreground.mean() > 0.005
+    assert rgb.std() > 5.0
+
+
+def test_render_png(model, tmp_path: Path) -> None:
+    require_offscreen()
+    _, reconstruction = model
+    out = visualize.render_png(
+        visualize.scene_geometry(reconstruction), tmp_path / "view.png", width=640, height=480
+    )
+    assert out == tmp_path / "view.png" and out.is_file()
+    _assert_not_blank(out, 640, 480)
+
+
+def test_show_png(model, tmp_path: Path) -> None:
+    require_offscreen()
+    sparse, _ = model
+    out = visualize.show(sparse, tmp_path / "show.png")
+    assert out == tmp_path / "show.png"
+    _assert_not_blank(out, 1280, 960)
+
+
+def test_show_without_display(model, monkeypatch: pytest.MonkeyPatch) -> None:
+    sparse, _ = model
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with pytest.raises(CalibrationError, match="no display: use --png OUT"):
+        visualize.show(sparse)
+
+
+def test_show_opens_a_window_with_a_display(model, monkeypatch: pytest.MonkeyPatch) -> None:
+    sparse, reconstruction = model
+    shown = []
+    monkeypatch.setenv("DISPLAY", ":0")
+    monkeypatch.setattr(o3d.visualization, "draw_geometries", lambda g, **_: shown.append(g))
+    assert visualize.show(sparse) is None
+    assert len(shown) == 1 and len(shown[0]) == 1 + reconstruction.num_reg_images()
+
+
+def test_show_missing_model(tmp_path: Path) -> None:
+    with pytest.raises(CalibrationError):
+        visualize.show(tmp_path / "nope", tmp_path / "x.png")
