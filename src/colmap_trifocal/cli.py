@@ -73,7 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
     run = commands.add_parser(
         "run", help="images -> features -> TrifocalCalib -> mapping -> bundle adjustment"
     )
-    run.add_argument("images", type=Path, help="folder of images (ignored with --database)")
+    run.add_argument(
+        "images", type=Path, help="folder of images (with --database: optional, for colours)"
+    )
     run.add_argument(
         "workspace", type=Path, help="output folder: database.db, sparse/0, report.json"
     )
@@ -184,7 +186,9 @@ def _run_pipeline(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         progress=sys.stderr.isatty(),
     )
-    report = run_pipeline(args.images if args.database is None else None, args.workspace, options)
+    # With --database, IMAGES is optional (only used to colour the points).
+    images = args.images if args.database is None or args.images.is_dir() else None
+    report = run_pipeline(images, args.workspace, options)
     print(format_report(report))
     return 0
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pycolmap
+from tqdm import tqdm
 
 from .errors import CalibrationError
 from .log import logger
@@ -49,6 +50,7 @@ def incremental_mapping(
     output_dir: Path,
     refine_intrinsics_while_mapping: bool = False,
     seed: int = 0,
+    progress: bool = False,
 ) -> pycolmap.Reconstruction:
     """pycolmap incremental mapping; returns the largest model, written to ``output_dir/0``.
 
@@ -60,6 +62,7 @@ def incremental_mapping(
             focal length and principal point (COLMAP's default refines focal only);
             False keeps the cameras fixed at their starting values.
         seed: random seed of the mapper.
+        progress: show a bar of registered images.
     """
     options = pycolmap.IncrementalPipelineOptions()
     options.random_seed = seed
@@ -68,10 +71,21 @@ def incremental_mapping(
     options.ba_refine_extra_params = False
     options.extract_colors = image_dir is not None
     output_dir.mkdir(parents=True, exist_ok=True)
+    with pycolmap.Database.open(str(database)) as db:
+        num_images = db.num_images()
+    bar = tqdm(total=num_images, desc="mapping: registered images", disable=not progress)
     # pycolmap insists on an existing image folder even when colours are not extracted.
-    models = pycolmap.incremental_mapping(
-        database, image_dir if image_dir is not None else output_dir, output_dir, options
-    )
+    try:
+        models = pycolmap.incremental_mapping(
+            database,
+            image_dir if image_dir is not None else output_dir,
+            output_dir,
+            options,
+            initial_image_pair_callback=lambda: bar.update(2),
+            next_image_callback=lambda: bar.update(1),
+        )
+    finally:
+        bar.close()
     if not models:
         raise CalibrationError("incremental mapping registered no images (no model)")
     largest = max(models.values(), key=lambda r: r.num_reg_images())

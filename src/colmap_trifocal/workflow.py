@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
 import tempfile
 import time
 from dataclasses import dataclass
@@ -118,6 +119,7 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
         shutil.copyfile(options.database, database)
     else:
         assert images is not None and names is not None
+        _stage(f"features and matching for {len(names)} images (pycolmap SIFT)", options.progress)
         build_database(
             images,
             database,
@@ -149,11 +151,15 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
                 reconstruction.cameras[camera_id].params = camera.params
     else:
         with tempfile.TemporaryDirectory(dir=workspace) as tmp:
-            reconstruction = incremental_mapping(database, images, Path(tmp), seed=options.seed)
+            _stage("mapping (pycolmap incremental)", options.progress)
+            reconstruction = incremental_mapping(
+                database, images, Path(tmp), seed=options.seed, progress=options.progress
+            )
     seconds["mapping"] = time.perf_counter() - start
 
     start = time.perf_counter()
     if options.refine == "ba":
+        _stage("bundle adjustment of focal lengths and principal points", options.progress)
         refine_intrinsics(reconstruction)
     seconds["refine"] = time.perf_counter() - start
 
@@ -164,6 +170,13 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
     (workspace / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     logger.info("wrote %s", workspace / "report.json")
     return report
+
+
+def _stage(message: str, progress: bool) -> None:
+    """Announce a long stage on stderr (with progress) and in the log."""
+    logger.info(message)
+    if progress:
+        print(f"{message} ...", file=sys.stderr, flush=True)
 
 
 def build_report(
