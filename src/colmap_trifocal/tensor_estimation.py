@@ -142,7 +142,11 @@ def estimate_triplet_tensor(
     x = (homogeneous @ np.linalg.inv(K0).T)[..., :2]
     threshold2 = options.inlier_threshold_px**2
 
-    scored = _subset(np.ones(n, dtype=bool), options.max_scored_tracks, rng)
+    scored = (
+        np.arange(n)
+        if n <= options.max_scored_tracks
+        else np.sort(rng.choice(n, size=options.max_scored_tracks, replace=False))
+    )
     samples = np.argpartition(rng.random((options.num_hypotheses, n)), MINIMAL_SAMPLE, axis=1)
     hypotheses = linear_tensor(*(x[view][samples[:, :MINIMAL_SAMPLE]] for view in range(3)))
     P2h, P3h = cameras_from_tensor(hypotheses)
@@ -199,14 +203,6 @@ def estimate_triplet_tensor(
         sigma_px=result.sigma,
         inliers=inliers,
     )
-
-
-def _subset(mask: np.ndarray, size: int, rng: np.random.Generator) -> np.ndarray:
-    """Indices of at most ``size`` randomly chosen true entries of ``mask``, sorted."""
-    indices = np.flatnonzero(mask)
-    if len(indices) <= size:
-        return indices
-    return np.sort(rng.choice(indices, size=size, replace=False))
 
 
 def calibrated_hypothesis(x: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray] | None:
