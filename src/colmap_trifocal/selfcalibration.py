@@ -270,7 +270,6 @@ def solve(
     candidates = scores = None
     if method == "direct":
         theta = problem.least_squares(theta0)
-        weights = np.ones(n)
     else:
         candidates = problem.per_tensor_estimates(theta0)
         # ‖r_j(θ_i)‖ for every candidate i (rows) and tensor j (columns).
@@ -291,9 +290,9 @@ def solve(
                 theta = updated
                 if converged:
                     break
-        norms = problem.norms(theta)
-        weights = (norms < tau).astype(float)
     norms = problem.norms(theta)
+    # Covariance over all tensors for direct, over the MSAC inliers otherwise.
+    weights = np.ones(n) if method == "direct" else (norms < tau).astype(float)
     if np.count_nonzero(weights) == 0:
         weights = np.ones(n)
     return SelfCalibrationResult(

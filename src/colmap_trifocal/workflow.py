@@ -115,7 +115,7 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
 
     start = time.perf_counter()
     if options.database is not None:
-        read_database(options.database)  # validates it (one-line errors) before copying
+        contents = read_database(options.database)  # validated (one-line errors), then copied
         shutil.copyfile(options.database, database)
     else:
         assert images is not None and names is not None
@@ -128,10 +128,10 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
             camera_model=options.camera_model,
             matcher=options.matcher,
         )
+        contents = read_database(database)
     seconds["features"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    contents = read_database(database)
     calibrations = calibrate_contents(
         contents,
         CalibrationOptions(method=options.method, seed=options.seed, progress=options.progress),
