@@ -12,6 +12,8 @@ import logging
 import sys
 from pathlib import Path
 
+import pycolmap
+
 from . import __version__
 from .demo import format_demo, run_demo
 from .errors import CalibrationError
@@ -118,8 +120,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _configure_logging(verbosity: int) -> None:
     """Package log level from -v/-vv; COLMAP's own (glog) messages only with -vv."""
-    import pycolmap
-
     pycolmap.logging.minloglevel = 0 if verbosity > 1 else 2  # 2: errors only
     if verbosity <= 0:
         return

@@ -48,8 +48,8 @@ class TensorEstimationOptions:
     #: sqrt(e2² + e3²), is below this, in pixels. COLMAP verifies pairs at 4 px.
     inlier_threshold_px: float = 4.0
     min_inliers: int = 30
-    #: Bundle adjustment / inlier re-selection rounds at most (stops when the
-    #: inlier set no longer changes; usually after 2).
+    #: Bundle adjustment / inlier re-selection rounds at most (stops when at most
+    #: 0.5 % of the tracks change side; usually after 2).
     refinement_rounds: int = 5
     max_ba_iterations: int = 30
     #: Tracks on which the hypotheses are scored (a random subset).
