@@ -61,3 +61,29 @@ def test_msac_and_fundamental_on_fountain(strecha_database) -> None:
     msac_error = mean_relative_error(msac.intrinsics, truth)
     assert msac_error <= 0.01
     assert msac_error < mean_relative_error(fundamental.intrinsics, truth)
+
+
+@pytest.mark.real_data
+@pytest.mark.parametrize("scene", SCENES)
+def test_from_colmap_default_camera(scene: str, strecha_database) -> None:
+    """No prior: the database holds COLMAP's guess f = 1.2 · 3072 (33 % too long)."""
+    database, folder = strecha_database(scene)
+    truth = ground_truth_intrinsics(folder)
+    (result,) = calibrate_database(database)
+    assert result.prior[0] == pytest.approx(1.2 * 3072)
+    assert abs(result.start[0] / truth[0] - 1) < 0.05  # the focal search
+    assert mean_relative_error(result.intrinsics, truth) <= 0.005
+    # Measured 27-28 of 30 (10 of 30 before the focal search: plane-dominated tensors).
+    assert result.num_inlier_triplets >= 20
+
+
+@pytest.mark.real_data
+def test_wide_priors_on_fountain(strecha_database) -> None:
+    """Priors 10-30 % off per parameter (random signs): the same accuracy as ±5 %."""
+    database, folder = strecha_database("fountain-P11")
+    truth = ground_truth_intrinsics(folder)
+    for seed in SEEDS:
+        rng = np.random.default_rng(200 + seed)
+        prior = truth * (1 + rng.choice([-1, 1], 4) * rng.uniform(0.10, 0.30, 4))
+        (result,) = calibrate_database(database, CalibrationOptions(prior=tuple(prior), seed=seed))
+        assert mean_relative_error(result.intrinsics, truth) <= 0.005, (prior, result.intrinsics)

@@ -70,6 +70,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="store the estimate in the database (a backup <name>.bak is made first)",
     )
     calibrate.add_argument("--max-triplets", type=int, default=CalibrationOptions.max_triplets)
+    calibrate.add_argument(
+        "--no-focal-search",
+        action="store_true",
+        help="start the tensors from the prior's focal length instead of searching it",
+    )
     calibrate.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
     run = commands.add_parser(
@@ -136,6 +141,7 @@ def _run_calibrate(args: argparse.Namespace) -> int:
         camera_ids=args.camera_ids,
         seed=args.seed,
         max_triplets=args.max_triplets,
+        focal_search=not args.no_focal_search,
         write=args.write,
         progress=not args.no_progress and sys.stderr.isatty(),
     )

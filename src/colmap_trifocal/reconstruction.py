@@ -8,6 +8,10 @@ principal point together with poses and points (distortion stays fixed).
 
 from __future__ import annotations
 
+import os
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -104,7 +108,34 @@ def refine_intrinsics(reconstruction: pycolmap.Reconstruction) -> None:
     options.refine_principal_point = True
     options.refine_extra_params = False
     options.print_summary = False
-    pycolmap.bundle_adjustment(reconstruction, options)
+    with _glog_level_kept():
+        pycolmap.bundle_adjustment(reconstruction, options)
+
+
+@contextmanager
+def _glog_level_kept() -> Iterator[None]:
+    """Keep COLMAP's log level across a call that resets it.
+
+    Measured with pycolmap 4.2: ``pycolmap.bundle_adjustment`` sets glog's
+    ``minloglevel`` to 0 and prints two INFO lines even when the level was 2. When
+    COLMAP is quiet, stderr (file descriptor 2, where glog writes) is silenced for
+    the call and the level restored afterwards.
+    """
+    level = pycolmap.logging.minloglevel
+    if level < 1:
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 2)
+    try:
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+        pycolmap.logging.minloglevel = level
 
 
 def mean_reprojection_error(reconstruction: pycolmap.Reconstruction) -> float:

@@ -33,6 +33,7 @@ Variants (TrifocalCalib paper):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -156,7 +157,7 @@ class ConstraintProblem:
         damping = np.full(n, 1e-3)
 
         def batch_residuals(values: np.ndarray) -> np.ndarray:
-            # Tensor i evaluated at its own parameters: diagonal of the (n, n) grid.
+            # Tensor i evaluated at its own parameters values[..., i, :].
             M = theta_to_matrix(self.full_theta(values))
             c = quartic_constraints(calibrate_tensor(self.tensors, M))
             return (self.whitening @ c[..., None])[..., 0]
@@ -164,15 +165,7 @@ class ConstraintProblem:
         r = batch_residuals(free)
         cost = np.einsum("na,na->n", r, r)
         for _ in range(iterations):
-            steps = _FD_STEP_THETA * np.eye(k)
-            J = np.stack(
-                [
-                    (batch_residuals(free + steps[j]) - batch_residuals(free - steps[j]))
-                    / (2 * _FD_STEP_THETA)
-                    for j in range(k)
-                ],
-                axis=-1,
-            )  # (n, 7, k)
+            J = np.moveaxis(_central_differences(batch_residuals, free), 0, -1)  # (n, 7, k)
             JtJ = np.swapaxes(J, 1, 2) @ J
             g = (np.swapaxes(J, 1, 2) @ r[..., None])[..., 0]
             diag = np.einsum("nii->ni", JtJ)
@@ -193,13 +186,19 @@ class ConstraintProblem:
         active = np.flatnonzero(w > 0)
         sqrt_w = np.sqrt(w[active])[:, None]
 
-        def fun(free: np.ndarray) -> np.ndarray:
-            return (self.residuals(self.full_theta(free), active) * sqrt_w).ravel()
+        def batched(free: np.ndarray) -> np.ndarray:
+            residuals = self.residuals(self.full_theta(free), active) * sqrt_w
+            return residuals.reshape(residuals.shape[:-2] + (-1,))
+
+        def jacobian(free: np.ndarray) -> np.ndarray:
+            return _central_differences(batched, free).T
 
         # x_scale=1: θ is dimensionless and of one scale. scipy's default for "lm"
         # ("jac") shrinks the first step to ~1/|J|, which stalls at the prior when
         # the whitened residuals are huge (noise-free data).
-        solution = least_squares(fun, self.free_theta(theta0), method="lm", xtol=1e-12, x_scale=1.0)
+        solution = least_squares(
+            batched, self.free_theta(theta0), jac=jacobian, method="lm", xtol=1e-12, x_scale=1.0
+        )
         return self.full_theta(solution.x)
 
     def covariance(self, theta: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -214,24 +213,29 @@ class ConstraintProblem:
         k = len(free)
 
         def fun(values: np.ndarray) -> np.ndarray:
-            r = self.residuals(self.full_theta(values), active)
-            return (r * np.sqrt(weights[active])[:, None]).ravel()
+            r = self.residuals(self.full_theta(values), active) * np.sqrt(weights[active])[:, None]
+            return r.reshape(r.shape[:-2] + (-1,))
 
         r0 = fun(free)
-        J = np.stack(
-            [
-                (fun(free + _FD_STEP_THETA * e) - fun(free - _FD_STEP_THETA * e))
-                / (2 * _FD_STEP_THETA)
-                for e in np.eye(k)
-            ],
-            axis=1,
-        )
+        J = _central_differences(fun, free).T
         dof = max(len(r0) - k, 1)
         covariance_free = np.linalg.pinv(J.T @ J) * max(float(r0 @ r0) / dof, 1e-300)
         if not self.single_focal:
             return covariance_free
         expand = np.array([[1, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
         return expand @ covariance_free @ expand.T
+
+
+def _central_differences(function: Callable[[np.ndarray], np.ndarray], x: np.ndarray) -> np.ndarray:
+    """Central-difference derivatives (k, ..., m) of a vectorised function at x (..., k).
+
+    ``function`` maps parameters (..., k) to values (..., m), broadcasting over
+    leading dimensions, so all 2k evaluations go in one call. Entry j is ∂f/∂x_j.
+    """
+    k = x.shape[-1]
+    steps = (_FD_STEP_THETA * np.eye(k)).reshape((k,) + (1,) * (x.ndim - 1) + (k,))
+    values = function(np.concatenate([x + steps, x - steps]))
+    return (values[:k] - values[k:]) / (2 * _FD_STEP_THETA)
 
 
 def msac_score(norms: np.ndarray, tau: float = MSAC_TAU) -> float:

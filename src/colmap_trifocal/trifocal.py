@@ -130,18 +130,24 @@ def calibrate_tensor(T: np.ndarray, K: np.ndarray) -> np.ndarray:
         T: tensors (..., 3, 3, 3) in the image coordinates that K maps to.
         K: intrinsics (..., 3, 3), broadcast against T's batch dimensions.
     """
-    K_inv = np.linalg.inv(K)
-    inner = np.einsum("...ab,...jbc,...dc->...jad", K_inv, T, K_inv)
-    return normalize_tensor(np.einsum("...ji,...jad->...iad", K, inner))
+    K_inv = np.linalg.inv(K)[..., None, :, :]
+    inner = K_inv @ T @ np.swapaxes(K_inv, -1, -2)  # K⁻¹ T_j K⁻ᵀ, (..., 3, 3, 3)
+    mixed = np.swapaxes(K, -1, -2) @ inner.reshape(inner.shape[:-3] + (3, 9))
+    return normalize_tensor(mixed.reshape(mixed.shape[:-1] + (3, 3)))
 
 
 def _psi(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """ψ(X, Y) = tr X tr Y − 2 tr(XY) for stacks of 3x3 matrices."""
-    return _trace(X) * _trace(Y) - 2.0 * np.einsum("...ab,...ba->...", X, Y)
+    return _trace(X) * _trace(Y) - 2.0 * _trace_of_product(X, Y)
 
 
 def _trace(X: np.ndarray) -> np.ndarray:
-    return np.einsum("...aa->...", X)
+    return X[..., 0, 0] + X[..., 1, 1] + X[..., 2, 2]
+
+
+def _trace_of_product(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """tr(XY) without forming XY."""
+    return (X * np.swapaxes(Y, -1, -2)).sum(axis=(-2, -1))
 
 
 def quartic_constraints(T: np.ndarray) -> np.ndarray:
@@ -162,9 +168,9 @@ def quartic_constraints(T: np.ndarray) -> np.ndarray:
     Returns:
         Constraint values (..., 15); zero for calibrated tensors.
     """
-    U = np.einsum("...kab,...kcb->...kac", T, T)
-    T_next = np.roll(T, -1, axis=-3)
-    TTn = np.einsum("...kab,...kcb->...kac", T, T_next)
+    T_transposed = np.swapaxes(T, -1, -2)
+    U = T @ T_transposed
+    TTn = T @ np.roll(T_transposed, -1, axis=-3)
     V = TTn + np.swapaxes(TTn, -1, -2)
     values = []
     for a, b, c in CYCLIC:
@@ -178,11 +184,15 @@ def quartic_constraints(T: np.ndarray) -> np.ndarray:
         Ua, Ub, Uc = U[..., a, :, :], U[..., b, :, :], U[..., c, :, :]
         Va, Vb, Vc = V[..., a, :, :], V[..., b, :, :], V[..., c, :, :]
         D = Uc - Ua
-        values.append(_trace(Ub) ** 2 - _trace(Vc) ** 2 - _trace(Ub @ Ub - Vc @ Vc + D @ D))
+        values.append(
+            _trace(Ub) ** 2
+            - _trace(Vc) ** 2
+            - (_trace_of_product(Ub, Ub) - _trace_of_product(Vc, Vc) + _trace_of_product(D, D))
+        )
         values.append(
             _trace(Vb) * _trace(Ua - 2.0 * Ub - Uc)
             - _trace(Va) * _trace(Vc)
-            + 2.0 * _trace(Vb @ Ub)
+            + 2.0 * _trace_of_product(Vb, Ub)
         )
     return np.stack(values, axis=-1)
 

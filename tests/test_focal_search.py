@@ -1,0 +1,64 @@
+"""The focal-length search that replaces a poor prior focal before the tensors are estimated."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import intrinsics_of, synthesize
+
+from colmap_trifocal import CalibrationOptions, calibrate_database
+from colmap_trifocal.focal_search import SEARCH_FACTORS, search_focal
+from colmap_trifocal.synthetic import DEFAULT_INTRINSICS, make_scene
+
+TRUTH = DEFAULT_INTRINSICS
+
+
+def _triplet_tracks(seeds: list[int], noise_px: float) -> list[np.ndarray]:
+    return [make_scene(noise_px=noise_px, seed=seed).observations for seed in seeds]
+
+
+@pytest.mark.parametrize("factor", [0.6, 1.33, 1.8])
+def test_search_finds_the_focal_from_far_off(factor: float) -> None:
+    """From 40 % short to 80 % long, the search lands within one grid step (12 %)."""
+    start = TRUTH * np.array([factor, factor, 1, 1])
+    result = search_focal(
+        _triplet_tracks([0, 1, 2], 0.5), start, np.random.default_rng(0), workers=1
+    )
+    assert abs(result.focal / np.sqrt(TRUTH[0] * TRUTH[1]) - 1) < 0.06
+    assert result.costs.shape == SEARCH_FACTORS.shape
+    assert np.all(np.isfinite(result.costs))
+    # The truth lies inside the searched range, so the minimum is not at its edge.
+    assert 0 < int(np.argmin(result.costs)) < len(SEARCH_FACTORS) - 1
+
+
+def test_search_is_reproducible() -> None:
+    tracks = _triplet_tracks([3, 4], 1.0)
+    start = TRUTH * np.array([1.3, 1.3, 1, 1])
+    first = search_focal(tracks, start, np.random.default_rng(5), workers=1)
+    second = search_focal(tracks, start, np.random.default_rng(5), workers=2)
+    assert first.focal == second.focal
+    np.testing.assert_array_equal(first.costs, second.costs)
+
+
+def test_calibration_from_a_prior_50_percent_off(tmp_path: Path) -> None:
+    """A pycolmap synthetic database, exact keypoints: recovered from a 50 % wrong focal."""
+    params = [1100.0, 1250.0, 530.0, 370.0]
+    path = tmp_path / "database.db"
+    synthesize(path, "PINHOLE", params)
+    truth = intrinsics_of(params, "PINHOLE")
+    prior = tuple(truth * np.array([1.5, 1.45, 1.06, 0.94]))
+    (result,) = calibrate_database(path, CalibrationOptions(prior=prior))
+    np.testing.assert_allclose(result.intrinsics, truth, rtol=1e-5)
+    assert result.prior == prior
+    # Without the re-estimation, the tensors start from the searched focal length
+    # (square pixels) and the prior's principal point.
+    (searched,) = calibrate_database(path, CalibrationOptions(prior=prior, restart=False))
+    assert searched.start[0] == searched.start[1]
+    assert abs(searched.start[0] / np.sqrt(truth[0] * truth[1]) - 1) < 0.12  # one grid step
+    assert searched.start[2:] == prior[2:]
+    (held,) = calibrate_database(
+        path, CalibrationOptions(prior=prior, focal_search=False, restart=False)
+    )
+    assert held.start == prior
