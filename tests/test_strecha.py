@@ -74,7 +74,7 @@ def test_from_colmap_default_camera(scene: str, strecha_database) -> None:
     assert abs(result.start[0] / truth[0] - 1) < 0.05  # the focal search
     assert mean_relative_error(result.intrinsics, truth) <= 0.005
     # Measured 27-28 of 30 (10 of 30 before the focal search: plane-dominated tensors).
-    assert result.num_inlier_triplets >= 20
+    assert result.num_inlier_triplets >= 0.75 * result.num_triplets
 
 
 @pytest.mark.real_data

@@ -20,6 +20,7 @@ from .pipeline import (
     CalibrationOptions,
     CameraCalibration,
     calibrate_contents,
+    calibrate_contents_methods,
     calibrate_database,
 )
 
@@ -30,5 +31,6 @@ __all__ = [
     "CameraCalibration",
     "__version__",
     "calibrate_contents",
+    "calibrate_contents_methods",
     "calibrate_database",
 ]

@@ -17,6 +17,12 @@ import pycolmap
 from . import __version__
 from .demo import format_demo, run_demo
 from .errors import CalibrationError
+from .evaluation.commands import (
+    add_evaluate_parser,
+    add_synthetic_parser,
+    run_evaluate,
+    run_synthetic,
+)
 from .features import MATCHERS
 from .log import logger
 from .pipeline import METHODS, CalibrationOptions, calibrate_database, parse_prior
@@ -107,6 +113,9 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="replace the results of an earlier run in WORKSPACE",
     )
+
+    add_evaluate_parser(commands)
+    add_synthetic_parser(commands)
 
     show = commands.add_parser(
         "show", help="Open3D view of a COLMAP model (points, camera frustums)"
@@ -215,6 +224,10 @@ def main(argv: list[str] | None = None) -> int:
             if written is not None:
                 print(f"wrote {written}")
             return 0
+        if args.command == "evaluate":
+            return run_evaluate(args, sys.stderr.isatty())
+        if args.command == "synthetic":
+            return run_synthetic(args, sys.stderr.isatty())
         if args.command == "demo":
             result = run_demo(seed=args.seed, workdir=args.keep, method=args.method)
             print(format_demo(result))

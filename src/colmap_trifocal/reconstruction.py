@@ -108,12 +108,12 @@ def refine_intrinsics(reconstruction: pycolmap.Reconstruction) -> None:
     options.refine_principal_point = True
     options.refine_extra_params = False
     options.print_summary = False
-    with _glog_level_kept():
+    with keep_colmap_quiet():
         pycolmap.bundle_adjustment(reconstruction, options)
 
 
 @contextmanager
-def _glog_level_kept() -> Iterator[None]:
+def keep_colmap_quiet() -> Iterator[None]:
     """Keep COLMAP's log level across a call that resets it.
 
     Measured with pycolmap 4.2: ``pycolmap.bundle_adjustment`` sets glog's

@@ -4,6 +4,11 @@ Layout per scene: ``images/NNNN.jpg`` and ``gt_dense_cameras/NNNN.jpg.camera``.
 A ``.camera`` file holds K (rows 1-3), radial distortion (row 4), the
 camera-to-world rotation (rows 5-7), the centre (row 8) and the image size
 (row 9); projection ``x ~ K Rᵀ (X − C)``.
+
+:func:`read_strecha_scene` gives the scene as a :class:`DatasetScene`
+(``colmap-trifocal evaluate strecha <scene>``): the pose is turned into
+world-to-camera ``R = Rᵀ_file``, ``t = −R C``; the intrinsics are kept as given
+(no pixel-convention shift).
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CalibrationError
+from .base import DatasetScene, GroundTruthView, parsing, pose_from_camera_to_world, require_dir
 
 #: Environment variable naming the folder that holds ``strecha/`` (default: ../shared/datasets).
 DATASETS_ENV = "COLMAP_TRIFOCAL_DATASETS"
@@ -73,3 +79,28 @@ def default_datasets_root(project_root: Path) -> Path:
     """``$COLMAP_TRIFOCAL_DATASETS`` or ``<project>/../shared/datasets``."""
     env = os.environ.get(DATASETS_ENV)
     return Path(env) if env else Path(project_root).resolve().parent / "shared" / "datasets"
+
+
+def read_strecha_scene(path: Path | str) -> DatasetScene:
+    """A scene folder with ``images/`` and ``gt_dense_cameras/`` as a :class:`DatasetScene`."""
+    scene = require_dir(path, "Strecha scene folder")
+    with parsing(scene, "Strecha scene"):
+        cameras = ground_truth(scene)
+        if not cameras:
+            raise CalibrationError(f"no images in {scene / 'images'}")
+        poses = pose_from_camera_to_world(
+            np.stack([c.rotation for c in cameras.values()]),
+            np.stack([c.centre for c in cameras.values()]),
+        )
+        views = [
+            GroundTruthView(
+                name=name,
+                intrinsics=camera.intrinsics,
+                width=camera.width,
+                height=camera.height,
+                rotation=pose[:, :3],
+                translation=pose[:, 3],
+            )
+            for (name, camera), pose in zip(cameras.items(), poses, strict=True)
+        ]
+    return DatasetScene(kind="strecha", name=scene.name, image_dir=scene / "images", views=views)

@@ -1,0 +1,1 @@
+"""The paper's evaluation: real datasets with ground truth and the synthetic experiment."""
