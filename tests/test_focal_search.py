@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import intrinsics_of, synthesize
 
-from colmap_trifocal import CalibrationOptions, calibrate_database
+from colmap_trifocal import CalibrationError, CalibrationOptions, calibrate_database
 from colmap_trifocal.focal_search import SEARCH_FACTORS, search_focal
 from colmap_trifocal.synthetic import DEFAULT_INTRINSICS, make_scene
 
@@ -62,3 +62,18 @@ def test_calibration_from_a_prior_50_percent_off(tmp_path: Path) -> None:
         path, CalibrationOptions(prior=prior, focal_search=False, restart=False)
     )
     assert held.start == prior
+
+
+def test_no_prior_starts_from_colmaps_guess(tmp_path: Path) -> None:
+    """--no-prior ignores a badly wrong stored camera and still recovers K."""
+    params = [1100.0, 1250.0, 530.0, 370.0]
+    path = tmp_path / "database.db"
+    reconstruction = synthesize(path, "PINHOLE", params)
+    (camera,) = reconstruction.cameras.values()
+    truth = intrinsics_of(params, "PINHOLE")
+    (result,) = calibrate_database(path, CalibrationOptions(no_prior=True))
+    guess = 1.2 * max(camera.width, camera.height)
+    assert result.prior == (guess, guess, camera.width / 2, camera.height / 2)
+    np.testing.assert_allclose(result.intrinsics, truth, rtol=1e-5)
+    with pytest.raises(CalibrationError, match="exclude each other"):
+        calibrate_database(path, CalibrationOptions(no_prior=True, prior=tuple(truth)))

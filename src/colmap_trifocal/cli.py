@@ -77,6 +77,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     calibrate.add_argument("--max-triplets", type=int, default=CalibrationOptions.max_triplets)
     calibrate.add_argument(
+        "--no-prior",
+        action="store_true",
+        help="ignore the stored camera: start from f = 1.2 · max(width, height), centred",
+    )
+    calibrate.add_argument(
         "--no-focal-search",
         action="store_true",
         help="start the tensors from the prior's focal length instead of searching it",
@@ -151,6 +156,7 @@ def _run_calibrate(args: argparse.Namespace) -> int:
         seed=args.seed,
         max_triplets=args.max_triplets,
         focal_search=not args.no_focal_search,
+        no_prior=args.no_prior,
         write=args.write,
         progress=not args.no_progress and sys.stderr.isatty(),
     )

@@ -46,6 +46,10 @@ class CalibrationOptions:
     method: str = "msac-opt"
     #: Starting point (fx, fy, cx, cy) in pixels for every camera; None: the stored camera.
     prior: tuple[float, float, float, float] | None = None
+    #: Ignore the stored camera and start from COLMAP's guess for the image size
+    #: (f = 1.2 · max(width, height), centred principal point); the focal search
+    #: does the rest.
+    no_prior: bool = False
     #: Cameras to calibrate; None: all cameras with at least 3 images.
     camera_ids: list[int] | None = None
     seed: int = 0
@@ -129,6 +133,12 @@ def parse_prior(text: str) -> tuple[float, float, float, float]:
     return values  # type: ignore[return-value]
 
 
+def default_guess(width: int, height: int) -> np.ndarray:
+    """COLMAP's starting intrinsics for an image size: f = 1.2 · max(w, h), centred (pixels)."""
+    focal = 1.2 * max(width, height)
+    return np.array([focal, focal, width / 2.0, height / 2.0])
+
+
 def calibrate_database(
     path: Path | str, options: CalibrationOptions | None = None
 ) -> list[CameraCalibration]:
@@ -145,6 +155,8 @@ def calibrate_database(
         CalibrationError: bad input (see the message).
     """
     options = options or CalibrationOptions()
+    if options.no_prior and options.prior is not None:
+        raise CalibrationError("--prior and --no-prior exclude each other")
     if options.method not in METHODS:
         raise CalibrationError(f"unknown method {options.method!r} (choose from {METHODS})")
     path = Path(path)
@@ -235,7 +247,12 @@ def calibrate_camera(
         raise CalibrationError(
             f"camera {camera.camera_id} has {len(image_ids)} image(s); at least 3 are needed"
         )
-    prior = np.asarray(options.prior if options.prior is not None else camera.intrinsics, float)
+    if options.no_prior:
+        prior = default_guess(camera.width, camera.height)
+    elif options.prior is not None:
+        prior = np.asarray(options.prior, float)
+    else:
+        prior = np.asarray(camera.intrinsics, float)
     if camera.single_focal:
         prior[:2] = prior[:2].mean()
     keypoints = {i: undistort_to_pinhole(camera, contents.keypoints[i]) for i in image_ids}
