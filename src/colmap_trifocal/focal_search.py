@@ -17,7 +17,7 @@ of a triplet is the mean truncated squared transfer error of its calibrated
 hypothesis (pixels², on a random subset of its tracks); costs are summed over
 the triplets with most tracks and the grid minimum is refined by a parabola in
 log f. Measured on both Strecha scenes from the default camera: focal length
-within 0.4–0.9 % of the truth, enough for the tensor stage to behave as from a
+within 1–4 % of the truth (3 seeds), enough for the tensor stage to behave as from a
 ±5 % prior. Candidates below the grid's 12 % spacing are not resolved here;
 the constraint solver does that.
 """
