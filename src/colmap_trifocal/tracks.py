@@ -70,10 +70,11 @@ def select_triplets(
     min_tracks: int = 40,
     max_triplets: int | None = 100,
 ) -> list[Triplet]:
-    """All triplets of ``image_ids`` with at least ``min_tracks`` tracks, most tracks first.
+    """Triplets of ``image_ids`` with at least ``min_tracks`` tracks, spread over the images.
 
-    Only triplets whose three pairs all have verified matches are considered.
-    At most ``max_triplets`` are returned (None: no limit).
+    Only triplets whose three pairs all have verified matches are considered. At
+    most ``max_triplets`` are returned (None: all, most tracks first), chosen by
+    :func:`spread_triplets`.
     """
     neighbours = graph.neighbours()
     allowed = set(image_ids)
@@ -88,4 +89,33 @@ def select_triplets(
             if len(indices) >= min_tracks:
                 triplets.append(Triplet((i, j, k), indices))
     triplets.sort(key=lambda t: -len(t.keypoint_indices))
-    return triplets if max_triplets is None else triplets[:max_triplets]
+    if max_triplets is None or len(triplets) <= max_triplets:
+        return triplets
+    return spread_triplets(triplets, max_triplets)
+
+
+def spread_triplets(candidates: list[Triplet], count: int) -> list[Triplet]:
+    """Greedily pick ``count`` triplets, each maximising ``tracks / (1 + uses)``.
+
+    ``uses`` is how often the triplet's three images already appear among the
+    picked ones. Ranking by tracks alone piles the triplets onto a few images
+    (measured: when all triplets of an 8-image sequence have equal track counts,
+    the top 20 all contain image 1), so their errors share those images' keypoints
+    and an image jackknife cannot drop any of them; the discount spreads them over
+    the view graph while still preferring well-matched triplets. The first pick is
+    the triplet with most tracks. Ties go to the earlier candidate.
+    """
+    images = sorted({i for t in candidates for i in t.image_ids})
+    column = {image: index for index, image in enumerate(images)}
+    members = np.array([[column[i] for i in t.image_ids] for t in candidates])
+    tracks = np.array([len(t.keypoint_indices) for t in candidates], dtype=float)
+    uses = np.zeros(len(images))
+    available = np.ones(len(candidates), dtype=bool)
+    chosen = []
+    for _ in range(min(count, len(candidates))):
+        score = np.where(available, tracks / (1.0 + uses[members].sum(axis=1)), -np.inf)
+        best = int(np.argmax(score))
+        chosen.append(candidates[best])
+        available[best] = False
+        uses[members[best]] += 1
+    return chosen

@@ -1,0 +1,63 @@
+"""Three-view tracks from pairwise matches, and the spread of the selected triplets."""
+
+from __future__ import annotations
+
+from collections import Counter
+from itertools import combinations
+
+import numpy as np
+
+from colmap_trifocal.tracks import MatchGraph, Triplet, select_triplets, spread_triplets
+
+
+def complete_graph(num_images: int, num_tracks: int) -> MatchGraph:
+    """Every keypoint k of every image matched to keypoint k of every other image."""
+    identity = np.stack([np.arange(num_tracks)] * 2, axis=1)
+    matches = {pair: identity for pair in combinations(range(1, num_images + 1), 2)}
+    return MatchGraph(matches, dict.fromkeys(range(1, num_images + 1), num_tracks))
+
+
+def test_tracks_need_a_consistent_three_cycle() -> None:
+    matches = {
+        (1, 2): np.array([[0, 0], [1, 1], [2, 2]]),
+        (1, 3): np.array([[0, 0], [1, 1], [2, 2]]),
+        (2, 3): np.array([[0, 0], [1, 2], [2, 1]]),  # keypoints 1 and 2 swapped
+    }
+    graph = MatchGraph(matches, {1: 3, 2: 3, 3: 3})
+    np.testing.assert_array_equal(graph.tracks(1, 2, 3), [[0, 0, 0]])
+    assert len(graph.tracks(1, 2, 4)) == 0  # no matches with image 4
+
+
+def test_all_triplets_when_under_the_limit() -> None:
+    triplets = select_triplets(complete_graph(5, 50), list(range(1, 6)), 40, None)
+    assert len(triplets) == 10
+    assert all(len(t.keypoint_indices) == 50 for t in triplets)
+    assert select_triplets(complete_graph(5, 30), list(range(1, 6)), 40, None) == []
+
+
+def test_equal_triplets_are_spread_over_the_images() -> None:
+    """With equal track counts, ranking alone would take (1,2,3), (1,2,4), ... (all with 1)."""
+    triplets = select_triplets(complete_graph(8, 60), list(range(1, 9)), 40, 20)
+    assert len(triplets) == 20
+    uses = Counter(i for t in triplets for i in t.image_ids)
+    assert set(uses) == set(range(1, 9))
+    assert max(uses.values()) - min(uses.values()) <= 2
+    # Every image can be dropped and triplets remain (what the jackknife needs).
+    assert all(any(i not in t.image_ids for t in triplets) for i in range(1, 9))
+    assert len({t.image_ids for t in triplets}) == 20
+
+
+def test_spread_prefers_more_tracks_and_starts_with_the_best() -> None:
+    def triplet(ids: tuple[int, int, int], tracks: int) -> Triplet:
+        return Triplet(ids, np.zeros((tracks, 3), dtype=np.int64))
+
+    candidates = [
+        triplet((1, 2, 3), 1000),
+        triplet((1, 2, 4), 900),
+        triplet((4, 5, 6), 400),
+        triplet((1, 5, 6), 100),
+    ]
+    chosen = spread_triplets(candidates, 3)
+    # (1, 2, 4) reuses two images: 900 / 3 = 300 < 400 of the disjoint (4, 5, 6).
+    assert [t.image_ids for t in chosen] == [(1, 2, 3), (4, 5, 6), (1, 2, 4)]
+    assert spread_triplets(candidates, 10) == spread_triplets(candidates, 4)
