@@ -11,6 +11,7 @@ from functools import cache
 import numpy as np
 import pytest
 
+from colmap_trifocal.parametrization import SINGLE_FOCAL
 from colmap_trifocal.selfcalibration import (
     MSAC_TAU,
     ConstraintProblem,
@@ -120,7 +121,7 @@ def test_whitened_residuals_are_chi_square_at_the_truth() -> None:
 
 def test_single_focal_returns_equal_focals() -> None:
     truth, prior, tensors = scene_tensors(0.5, 4, seed=3, single_focal=True)
-    result = solve(tensors, "msac-opt", single_focal=True)
+    result = solve(tensors, "msac-opt", SINGLE_FOCAL.parametrization(prior, prior))
     estimate = theta_to_intrinsics(result.theta, prior)
     assert estimate[0] == estimate[1]
     assert result.theta[0] == result.theta[1]

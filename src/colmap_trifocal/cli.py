@@ -175,13 +175,9 @@ def _run_calibrate(args: argparse.Namespace) -> int:
             f"{r.cx:>10.2f} {r.cy:>10.2f} {r.num_inlier_triplets:>4}/{r.num_triplets:<4} "
             f"{r.seconds:>6.1f}s"
         )
-        hidden = [name for name, ok in r.observable.items() if not ok]
-        if hidden:
-            print(
-                f"warning: camera {r.camera_id}: {', '.join(hidden)} not well determined "
-                "by these images",
-                file=sys.stderr,
-            )
+        warning = r.warning()
+        if warning is not None:
+            print(f"warning: {warning}", file=sys.stderr)
     if args.json is not None:
         try:
             args.json.write_text(json.dumps([r.to_json() for r in results], indent=2) + "\n")

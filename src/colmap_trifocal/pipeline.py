@@ -11,7 +11,7 @@ transaction).
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -23,17 +23,22 @@ from .errors import CalibrationError
 from .focal_search import search_focal
 from .fundamental import calibrate_from_fundamentals
 from .log import logger
+from .observability import tolerance
 from .parallel import map_jobs
-from .selfcalibration import MSAC_TAU, solve, theta_to_intrinsics
+from .parametrization import FULL, SINGLE_FOCAL
+from .results import PARAMETER_NAMES, CameraCalibration, TripletReport, finite_or_none
+from .selfcalibration import (
+    MSAC_TAU,
+    FallbackSolution,
+    SelfCalibrationResult,
+    solve_with_fallback,
+    theta_to_intrinsics,
+)
 from .tensor_estimation import TensorEstimationOptions, TripletTensor, estimate_triplet_tensor
 from .tracks import MatchGraph, Triplet, select_triplets
 from .trifocal import intrinsics_matrix
 
 METHODS = ("msac-opt", "msac", "direct", "fundamental")
-PARAMETER_NAMES = ("fx", "fy", "cx", "cy")
-#: A parameter counts as observable when its standard deviation is below this
-#: fraction of the focal length (2 %: well beyond the ±5 % of a typical prior).
-OBSERVABLE_RELATIVE_STD = 0.02
 #: See ``CalibrationOptions.restart``. A safety net for gross offsets only: measured
 #: on the Strecha scenes, after the focal search, priors 10–30 % off per parameter
 #: give the same accuracy without the re-estimation (0.147 / 0.158 % vs 0.158 / 0.162 %).
@@ -76,42 +81,6 @@ class CalibrationOptions:
     #: (msac and msac-opt; ``direct`` has no outlier defence, so its far-off
     #: estimates come from bad tensors, not from the start).
     restart: bool = True
-
-
-@dataclass
-class CameraCalibration:
-    """The estimate for one camera, as written by ``calibrate --json``."""
-
-    camera_id: int
-    model: str
-    method: str
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    std: dict[str, float | None]
-    observable: dict[str, bool]
-    num_triplets: int
-    num_inlier_triplets: int
-    seconds: float
-    prior: tuple[float, float, float, float]
-    #: (fx, fy, cx, cy) the tensors were normalised with: the prior after the focal
-    #: search (and after the re-estimation when the estimate moved far from it).
-    start: tuple[float, float, float, float]
-    tensors: list[TripletTensor] = field(default_factory=list, repr=False)
-
-    @property
-    def intrinsics(self) -> np.ndarray:
-        """(fx, fy, cx, cy) in pixels."""
-        return np.array([self.fx, self.fy, self.cx, self.cy])
-
-    def to_json(self) -> dict:
-        """The JSON object of DESIGN.md (plus the prior used)."""
-        data = asdict(self)
-        data.pop("tensors")
-        data["prior"] = dict(zip(PARAMETER_NAMES, self.prior, strict=True))
-        data["start"] = dict(zip(PARAMETER_NAMES, self.start, strict=True))
-        return data
 
 
 def parse_prior(text: str) -> tuple[float, float, float, float]:
@@ -318,12 +287,24 @@ def _prepare_tensors(
 def _solve_camera(
     data: _CameraInput, prepared: _PreparedTensors, method: str, options: CalibrationOptions
 ) -> CameraCalibration:
-    """One trifocal variant on the prepared tensors (re-estimated once if it moves far)."""
+    """One trifocal variant on the prepared tensors (re-estimated once if it moves far).
+
+    Parameters the triplets do not determine are tied (fy = fx) or held at the
+    prior (:func:`.selfcalibration.solve_with_fallback`).
+    """
     clock = time.perf_counter()
     camera = data.camera
+    base = SINGLE_FOCAL if camera.single_focal else FULL
+
+    def solve_from(start: np.ndarray, tensors: list[TripletTensor]) -> FallbackSolution:
+        tolerances = tolerance(start, camera.width, camera.height)
+        return solve_with_fallback(
+            tensors, method, base, start, data.prior, tolerances, options.tau
+        )
+
     start, tensors = prepared.start, prepared.tensors
-    solution = solve(tensors, method, camera.single_focal, options.tau)
-    estimate = theta_to_intrinsics(solution.theta, start)
+    fallback = solve_from(start, tensors)
+    estimate = theta_to_intrinsics(fallback.solution.theta, start)
     if options.restart and method != "direct" and _moved(estimate, start):
         logger.info(
             "camera %d: estimate far from the start; re-estimating the tensors", camera.camera_id
@@ -332,24 +313,63 @@ def _solve_camera(
         tensors = _estimate_tensors(
             prepared.triplets, prepared.tracks, start, prepared.seeds, camera, options
         )
-        solution = solve(tensors, method, camera.single_focal, options.tau)
-        estimate = theta_to_intrinsics(solution.theta, start)
-    scale = np.array([start[0], start[1], start[0], start[1]])
-    std = np.sqrt(np.maximum(np.diag(solution.covariance), 0.0)) * scale
+        fallback = solve_from(start, tensors)
+        estimate = theta_to_intrinsics(fallback.solution.theta, start)
+    solution, model = fallback.solution, fallback.model
+    if model != base:
+        logger.info("camera %d: assumed %s", camera.camera_id, "; ".join(model.assumptions()))
+    estimated = model.estimated(camera.single_focal)
+    focal_scale = np.array([start[0], start[1], start[0], start[1]])
+    std = fallback.relative_std * focal_scale
+    unconstrained = fallback.unconstrained.relative_std * focal_scale
     return CameraCalibration(
         camera_id=camera.camera_id,
         model=camera.model,
         method=method,
         **dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True)),
-        std={name: float(s) for name, s in zip(PARAMETER_NAMES, std, strict=True)},
-        observable=_observable(std, data.prior),
+        std={
+            name: finite_or_none(s) if estimated[name] else None
+            for name, s in zip(PARAMETER_NAMES, std, strict=True)
+        },
+        observable=estimated,
         num_triplets=len(tensors),
         num_inlier_triplets=int(solution.inlier_tensors.sum()),
         seconds=prepared.seconds + time.perf_counter() - clock,
         prior=tuple(map(float, data.prior)),  # type: ignore[arg-type]
         start=tuple(map(float, start)),  # type: ignore[arg-type]
+        assumptions=model.assumptions(),
+        unconstrained_std={
+            name: finite_or_none(s) for name, s in zip(PARAMETER_NAMES, unconstrained, strict=True)
+        },
+        triplets=_triplet_reports(tensors, solution, start),
         tensors=tensors,
     )
+
+
+def _triplet_reports(
+    tensors: list[TripletTensor], solution: SelfCalibrationResult, start: np.ndarray
+) -> list[TripletReport]:
+    """Per-tensor diagnostics of a solve (candidates and scores for msac / msac-opt)."""
+    reports = []
+    for index, tensor in enumerate(tensors):
+        candidate = score = None
+        if solution.per_tensor_theta is not None and solution.per_tensor_scores is not None:
+            intrinsics = theta_to_intrinsics(solution.per_tensor_theta[index], start)
+            candidate = tuple(map(float, intrinsics))
+            score = float(solution.per_tensor_scores[index])
+        reports.append(
+            TripletReport(
+                image_ids=tuple(int(i) for i in tensor.image_ids),  # type: ignore[arg-type]
+                num_tracks=tensor.num_tracks,
+                num_inliers=tensor.num_inliers,
+                sigma_px=float(tensor.sigma_px),
+                residual_norm=float(solution.norms[index]),
+                inlier=bool(solution.inlier_tensors[index]),
+                candidate=candidate,  # type: ignore[arg-type]
+                score=score,
+            )
+        )
+    return reports
 
 
 def _estimate_tensors(
@@ -396,14 +416,6 @@ def _estimate_job(job: tuple) -> TripletTensor | None:
     return estimate_triplet_tensor(
         image_ids, tracks, K0, np.random.default_rng(seed), tensor_options
     )
-
-
-def _observable(std: np.ndarray, prior: np.ndarray) -> dict[str, bool]:
-    focal = float(np.mean(prior[:2]))
-    return {
-        name: bool(np.isfinite(s) and s < OBSERVABLE_RELATIVE_STD * focal)
-        for name, s in zip(PARAMETER_NAMES, std, strict=True)
-    }
 
 
 def _fundamental(data: _CameraInput, start: float) -> CameraCalibration:

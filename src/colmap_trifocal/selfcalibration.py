@@ -5,7 +5,9 @@ so a candidate K acts on them through ``M = K0⁻¹ K``. The unknowns are the
 relative corrections ``θ = (fx/fx0 − 1, fy/fy0 − 1, (cx − cx0)/fx0, (cy − cy0)/fy0)``,
 ``M(θ) = [[1 + θ0, 0, θ2], [0, 1 + θ1, θ3], [0, 0, 1]]``: all four are
 dimensionless and of the same scale, which keeps the problem well conditioned.
-For single-focal cameras θ1 = θ0 (three unknowns).
+Which of them are estimated is a :class:`.parametrization.Parametrization`
+(single-focal cameras tie fy to fx; parameters the images do not determine are
+tied or held at the prior, :func:`solve_with_fallback`).
 
 Residual scaling. The raw constraint values of different triplets are not
 comparable: a short-baseline triplet with few tracks has a noisy tensor and
@@ -34,11 +36,13 @@ Variants (TrifocalCalib paper):
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
 
+from .observability import effective_std, relative_std, select_model
+from .parametrization import FULL, Model, Parametrization
 from .tensor_estimation import TripletTensor
 from .trifocal import (
     CONSTRAINT_RANK,
@@ -47,6 +51,7 @@ from .trifocal import (
     quartic_constraints,
     tensor_from_cameras,
 )
+from .uncertainty import combined_information, jackknife_replicates
 
 #: MSAC threshold on the whitened constraint norm ‖r_i‖ (dimensionless).
 #: ‖r‖² ~ χ²(7) for an exact tensor: the 99 % quantile is 18.5 (‖r‖ = 4.3). Real
@@ -56,6 +61,13 @@ from .trifocal import (
 MSAC_TAU = 10.0
 _FD_STEP_CAMERA = 1e-6
 _FD_STEP_THETA = 1e-7
+#: Sensitivity of the raw constraints below which a direction of θ is null (see
+#: :meth:`ConstraintProblem.insensitive_directions`).
+RAW_SENSITIVITY_FLOOR = 1e-6
+#: MSAC reweighting rounds of a jackknife replicate (it starts at the optimum).
+JACKKNIFE_IRLS_ITERATIONS = 3
+#: All four parameters free, θ = p.
+FULL_PARAMETRIZATION = FULL.parametrization(np.ones(4), np.ones(4))
 
 
 def theta_to_matrix(theta: np.ndarray) -> np.ndarray:
@@ -112,30 +124,28 @@ def whitening_matrices(tensors: list[TripletTensor], theta: np.ndarray) -> np.nd
 
 @dataclass
 class ConstraintProblem:
-    """Whitened constraint residuals of a set of tensors as a function of θ."""
+    """Whitened constraint residuals of a set of tensors as a function of θ.
+
+    The unknowns are those of ``parametrization`` (``θ = A p + b``, see
+    :mod:`.parametrization`); by default all four.
+    """
 
     tensors: np.ndarray  # (n, 3, 3, 3) in prior-normalised coordinates
     whitening: np.ndarray  # (n, 7, 15)
-    single_focal: bool = False
+    parametrization: Parametrization = field(default_factory=lambda: FULL_PARAMETRIZATION)
 
     @classmethod
     def build(
-        cls, tensors: list[TripletTensor], theta: np.ndarray, single_focal: bool = False
+        cls,
+        tensors: list[TripletTensor],
+        theta: np.ndarray,
+        parametrization: Parametrization | None = None,
     ) -> ConstraintProblem:
         return cls(
             tensors=np.stack([t.tensor for t in tensors]),
             whitening=whitening_matrices(tensors, theta),
-            single_focal=single_focal,
+            parametrization=parametrization or FULL_PARAMETRIZATION,
         )
-
-    def full_theta(self, free: np.ndarray) -> np.ndarray:
-        """4-vector θ from the free parameters (3 of them for single-focal cameras)."""
-        if self.single_focal:
-            return np.concatenate([free[..., :1], free[..., :1], free[..., 1:]], axis=-1)
-        return free
-
-    def free_theta(self, theta: np.ndarray) -> np.ndarray:
-        return np.delete(theta, 1, axis=-1) if self.single_focal else theta
 
     def residuals(self, theta: np.ndarray, which: np.ndarray | None = None) -> np.ndarray:
         """Whitened residuals (..., n, 7) at θ (..., 4), for tensors ``which`` (default all)."""
@@ -151,14 +161,17 @@ class ConstraintProblem:
 
     def per_tensor_estimates(self, theta0: np.ndarray, iterations: int = 30) -> np.ndarray:
         """θ_i (n, 4) minimising each tensor's own residuals, all tensors in one batched LM."""
+        parametrization = self.parametrization
         n = len(self.tensors)
-        free = np.tile(self.free_theta(theta0), (n, 1))
+        free = np.tile(parametrization.free(theta0), (n, 1))
         k = free.shape[1]
+        if k == 0:
+            return parametrization.theta(free)
         damping = np.full(n, 1e-3)
 
         def batch_residuals(values: np.ndarray) -> np.ndarray:
             # Tensor i evaluated at its own parameters values[..., i, :].
-            M = theta_to_matrix(self.full_theta(values))
+            M = theta_to_matrix(parametrization.theta(values))
             c = quartic_constraints(calibrate_tensor(self.tensors, M))
             return (self.whitening @ c[..., None])[..., 0]
 
@@ -178,16 +191,19 @@ class ConstraintProblem:
             free[better], r[better] = candidate[better], r_new[better]
             cost[better] = cost_new[better]
             damping = np.where(better, damping / 3, damping * 4)
-        return self.full_theta(free)
+        return parametrization.theta(free)
 
     def least_squares(self, theta0: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
         """θ minimising ``Σ_i w_i ‖r_i(θ)‖²`` (scipy Levenberg–Marquardt)."""
+        parametrization = self.parametrization
+        if parametrization.dimension == 0:
+            return parametrization.theta(parametrization.free(theta0))
         w = np.ones(len(self.tensors)) if weights is None else weights
         active = np.flatnonzero(w > 0)
         sqrt_w = np.sqrt(w[active])[:, None]
 
         def batched(free: np.ndarray) -> np.ndarray:
-            residuals = self.residuals(self.full_theta(free), active) * sqrt_w
+            residuals = self.residuals(parametrization.theta(free), active) * sqrt_w
             return residuals.reshape(residuals.shape[:-2] + (-1,))
 
         def jacobian(free: np.ndarray) -> np.ndarray:
@@ -195,41 +211,91 @@ class ConstraintProblem:
 
         # x_scale=1: θ is dimensionless and of one scale. scipy's default for "lm"
         # ("jac") shrinks the first step to ~1/|J|, which stalls at the prior when
-        # the whitened residuals are huge (noise-free data).
+        # the whitened residuals are huge (noise-free data). "lm" needs at least as
+        # many residuals as unknowns; "trf" takes the rare smaller case.
+        method = "lm" if 7 * len(active) >= parametrization.dimension else "trf"
         solution = least_squares(
-            batched, self.free_theta(theta0), jac=jacobian, method="lm", xtol=1e-12, x_scale=1.0
+            batched,
+            parametrization.free(theta0),
+            jac=jacobian,
+            method=method,
+            xtol=1e-12,
+            x_scale=1.0,
         )
-        return self.full_theta(solution.x)
+        return parametrization.theta(solution.x)
 
-    def covariance(self, theta: np.ndarray, weights: np.ndarray) -> np.ndarray:
-        """Covariance (4, 4) of θ from the Gauss–Newton Hessian of the weighted cost.
+    def subset(self, keep: np.ndarray) -> ConstraintProblem:
+        """The problem restricted to the tensors of a boolean mask (n,)."""
+        return ConstraintProblem(self.tensors[keep], self.whitening[keep], self.parametrization)
 
-        The residuals are already whitened by the tensors' own covariance, so the
-        unscaled ``(JᵀJ)⁻¹`` is the covariance when the keypoint noise model holds.
-        It is multiplied by the reduced χ² only when that exceeds 1 (unmodelled
-        error on real data inflates it; it never shrinks it). Measured on the
+    def minimise_msac_cost(self, theta: np.ndarray, tau: float, iterations: int) -> np.ndarray:
+        """θ minimising ``Σ_i min(‖r_i‖, τ)`` from ``theta`` (IRLS, weights ``1/‖r_i‖``)."""
+        for _ in range(iterations):
+            norms = self.norms(theta)
+            weights = np.where(norms < tau, 1.0 / np.maximum(norms, 1e-3), 0.0)
+            if np.count_nonzero(weights) < min(2, len(norms)):
+                break
+            updated = self.least_squares(theta, weights)
+            converged = np.max(np.abs(updated - theta)) < 1e-9
+            theta = updated
+            if converged:
+                break
+        return theta
+
+    def information(self, theta: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """Information H (4, 4) about all four θ at ``theta``: ``JᵀJ`` of the weighted residuals.
+
+        The residuals are already whitened by the tensors' own covariance, so
+        ``H⁻¹`` is the covariance when the keypoint noise model holds. H is divided
+        by the reduced χ² of the residuals (degrees of freedom: residuals minus the
+        parametrization's unknowns) only when that exceeds 1: unmodelled error on
+        real data inflates the covariance, it never shrinks it. Measured on the
         synthetic experiment (100 runs per noise level 0.1 / 0.5 / 1.0 px): the
         truth lies within ±2 std in 94–96 % of runs for every parameter, rms of
         error/std 0.97–1.03. Scaling by the χ² itself (3 degrees of freedom for
-        one triplet) gave 75–91 %, a t(3) distribution. For single-focal cameras
-        the fy row equals the fx row.
+        one triplet) gave 75–91 %, a t(3) distribution.
         """
         active = np.flatnonzero(weights > 0)
-        free = self.free_theta(theta)
-        k = len(free)
+        sqrt_w = np.sqrt(weights[active])[:, None]
 
         def fun(values: np.ndarray) -> np.ndarray:
-            r = self.residuals(self.full_theta(values), active) * np.sqrt(weights[active])[:, None]
+            r = self.residuals(values, active) * sqrt_w
             return r.reshape(r.shape[:-2] + (-1,))
 
-        r0 = fun(free)
-        J = _central_differences(fun, free).T
-        dof = max(len(r0) - k, 1)
-        covariance_free = np.linalg.pinv(J.T @ J) * max(float(r0 @ r0) / dof, 1.0)
-        if not self.single_focal:
-            return covariance_free
-        expand = np.array([[1, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
-        return expand @ covariance_free @ expand.T
+        r0 = fun(theta)
+        J = _central_differences(fun, theta).T
+        dof = max(len(r0) - self.parametrization.dimension, 1)
+        information = (J.T @ J) / max(float(r0 @ r0) / dof, 1.0)
+        # Directions along which the raw constraints do not change carry no
+        # information, however much whitening by a tiny noise amplifies the
+        # numerical noise there (noise-free data, exact pure translation).
+        null = self.insensitive_directions(theta, active)
+        if null.shape[1]:
+            projector = np.eye(4) - null @ null.T
+            information = projector @ information @ projector
+        return information
+
+    def insensitive_directions(self, theta: np.ndarray, which: np.ndarray) -> np.ndarray:
+        """Orthonormal directions (4, d) of θ that leave the raw constraints unchanged.
+
+        Singular values of ``∂c/∂θ`` (unit-norm tensors, rms over tensors), measured
+        on synthetic 8-image sequences: 0.3–0.9 for general motion; along the fy
+        direction of planar or forward motion 1e-4 with 0.5 px noise and 7e-10
+        (finite-difference noise) without; all four 7e-10 for exact pure
+        translation. ``RAW_SENSITIVITY_FLOOR`` (1e-6) separates exact degeneracy
+        from everything noise can produce; the rest is the std test's job.
+        """
+        tensors = self.tensors[which]
+
+        def raw(values: np.ndarray) -> np.ndarray:
+            c = quartic_constraints(
+                calibrate_tensor(tensors, theta_to_matrix(values)[..., None, :, :])
+            )
+            return c.reshape(c.shape[:-2] + (-1,))
+
+        J = _central_differences(raw, theta).T / np.sqrt(max(len(tensors), 1))
+        _, singular_values, vt = np.linalg.svd(J, full_matrices=False)
+        return vt[singular_values < RAW_SENSITIVITY_FLOOR].T
 
 
 def _central_differences(function: Callable[[np.ndarray], np.ndarray], x: np.ndarray) -> np.ndarray:
@@ -254,7 +320,11 @@ class SelfCalibrationResult:
     """θ estimate with its covariance and the per-tensor diagnostics."""
 
     theta: np.ndarray  # (4,)
-    covariance: np.ndarray  # (4, 4) of θ
+    covariance: np.ndarray  # (4, 4) of θ (zero rows for held parameters)
+    #: (4, 4) about θ at the estimate: curvature and jackknife combined (see uncertainty)
+    information: np.ndarray
+    relative_std: np.ndarray  # (4,) std of θ; 0 held, inf undetermined
+    jackknife: np.ndarray | None  # (g, 4) θ of the image-jackknife replicates, if any
     inlier_tensors: np.ndarray  # (n,) bool, ‖r_i‖ < τ at the estimate
     norms: np.ndarray  # (n,) ‖r_i‖ at the estimate
     score: float  # MSAC score at the estimate
@@ -265,17 +335,28 @@ class SelfCalibrationResult:
 def solve(
     tensors: list[TripletTensor],
     method: str,
-    single_focal: bool = False,
+    parametrization: Parametrization | None = None,
     tau: float = MSAC_TAU,
     irls_iterations: int = 10,
+    span: Parametrization | None = None,
 ) -> SelfCalibrationResult:
-    """Run one TrifocalCalib variant (``direct``, ``msac``, ``msac-opt``) from the prior (θ = 0).
+    """Run one TrifocalCalib variant (``direct``, ``msac``, ``msac-opt``) from the start.
 
-    With ``single_focal`` the tensors must have been normalised with a prior whose
-    fx0 == fy0 (θ0 = θ1 then means fx = fy); :func:`colmap_trifocal.pipeline` ensures it.
+    Args:
+        tensors: tensors normalised by the start K (θ = 0).
+        method: ``direct``, ``msac`` or ``msac-opt``.
+        parametrization: the unknowns (default: all four free); the solve starts at
+            its ``p = 0``, i.e. the start K with held parameters at their values.
+        tau: MSAC threshold on ‖r_i‖.
+        irls_iterations: msac-opt reweighting rounds at most.
+        span: the unknowns the returned ``information`` covers (default: those of
+            ``parametrization``); a larger model's lets a caller judge what fixing
+            parameters costs (:func:`solve_with_fallback`).
     """
-    theta0 = np.zeros(4)
-    problem = ConstraintProblem.build(tensors, theta0, single_focal)
+    parametrization = parametrization or FULL_PARAMETRIZATION
+    span = span or parametrization
+    theta0 = parametrization.theta(np.zeros(parametrization.dimension))
+    problem = ConstraintProblem.build(tensors, theta0, parametrization)
     n = len(tensors)
     candidates = scores = None
     if method == "direct":
@@ -289,28 +370,90 @@ def solve(
         theta = candidates[int(np.argmax(scores))]
         if method == "msac-opt":
             # Re-whiten at the msac estimate: the covariance of the constraints depends on K.
-            problem = ConstraintProblem.build(tensors, theta, single_focal)
-            for _ in range(irls_iterations):
-                norms = problem.norms(theta)
-                weights = np.where(norms < tau, 1.0 / np.maximum(norms, 1e-3), 0.0)
-                if np.count_nonzero(weights) < 2:
-                    break
-                updated = problem.least_squares(theta, weights)
-                converged = np.max(np.abs(updated - theta)) < 1e-9
-                theta = updated
-                if converged:
-                    break
+            problem = ConstraintProblem.build(tensors, theta, parametrization)
+            theta = problem.minimise_msac_cost(theta, tau, irls_iterations)
     norms = problem.norms(theta)
-    # Covariance over all tensors for direct, over the MSAC inliers otherwise.
+    # Information over all tensors for direct, over the MSAC inliers otherwise.
     weights = np.ones(n) if method == "direct" else (norms < tau).astype(float)
     if np.count_nonzero(weights) == 0:
         weights = np.ones(n)
+
+    def resolve(keep: np.ndarray) -> np.ndarray | None:
+        """The local optimum from θ on the tensors ``keep`` (a jackknife replicate)."""
+        subset = problem.subset(keep)
+        if method == "direct":
+            return subset.least_squares(theta)
+        return subset.minimise_msac_cost(theta, tau, JACKKNIFE_IRLS_ITERATIONS)
+
+    replicates = jackknife_replicates([t.image_ids for t in tensors], resolve)
+    information = combined_information(problem.information(theta, weights), replicates, span)
     return SelfCalibrationResult(
         theta=theta,
-        covariance=problem.covariance(theta, weights),
+        covariance=covariance_of(information, parametrization),
+        information=information,
+        relative_std=relative_std(information, parametrization),
+        jackknife=replicates,
         inlier_tensors=norms < tau,
         norms=norms,
         score=msac_score(norms, tau),
         per_tensor_theta=candidates,
         per_tensor_scores=scores,
     )
+
+
+def covariance_of(information: np.ndarray, parametrization: Parametrization) -> np.ndarray:
+    """Covariance (4, 4) of θ: ``A (Aᵀ H A)⁺ Aᵀ`` (pseudo-inverse: see observability)."""
+    if parametrization.dimension == 0:
+        return np.zeros((4, 4))
+    matrix = parametrization.matrix
+    return parametrization.covariance(np.linalg.pinv(matrix.T @ information @ matrix))
+
+
+@dataclass
+class FallbackSolution:
+    """The solve of the camera model's parameters, and the one finally kept."""
+
+    solution: SelfCalibrationResult  # of ``model``
+    model: Model  # the parameters the images determine
+    unconstrained: SelfCalibrationResult  # of the base model (all it allows)
+    #: (4,) std of θ of ``model``'s estimate, its ties and holds counted as uncertain
+    #: (:func:`.observability.effective_std`); meaningful for the estimated parameters.
+    relative_std: np.ndarray
+
+
+def solve_with_fallback(
+    tensors: list[TripletTensor],
+    method: str,
+    base: Model,
+    start: np.ndarray,
+    held: np.ndarray,
+    tolerances: np.ndarray,
+    tau: float = MSAC_TAU,
+) -> FallbackSolution:
+    """Solve ``base``; while parameters are undetermined, re-solve without them.
+
+    Each round keeps the largest model the information at the current estimate
+    determines (:func:`.observability.select_model`), so every round estimates
+    strictly fewer parameters and the loop ends (at worst with everything held).
+
+    Args:
+        tensors: tensors normalised by ``start``.
+        method: ``direct``, ``msac`` or ``msac-opt``.
+        base: the parameters the camera model has (all four, or one focal length).
+        start: (fx0, fy0, cx0, cy0) of the normalisation, pixels.
+        held: the values held parameters keep (the prior), pixels.
+        tolerances: (4,) std of θ below which a parameter is determined
+            (:func:`.observability.tolerance`).
+        tau: MSAC threshold.
+    """
+    span = base.parametrization(start, held)
+    model = base
+    solution = unconstrained = solve(tensors, method, span, tau, span=span)
+    while True:
+        reduced = select_model(solution.information, model, base, start, held, tolerances)
+        if reduced == model:
+            break
+        model = reduced
+        solution = solve(tensors, method, model.parametrization(start, held), tau, span=span)
+    std = effective_std(solution.information, model, base, start, held)
+    return FallbackSolution(solution, model, unconstrained, std)

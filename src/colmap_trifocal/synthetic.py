@@ -53,6 +53,8 @@ class SyntheticScene:
     outlier_views: np.ndarray  # (n,) int, the corrupted view of each track, −1 if none
     width: int  # image width, pixels
     height: int  # image height, pixels
+    #: (m, n) bool: point n projects inside image m, in front of it; None: all of them.
+    visible: np.ndarray | None = None
 
     @property
     def num_cameras(self) -> int:

@@ -36,17 +36,16 @@ noise pattern, scaled) at every noise level: the noise levels are paired.
 from __future__ import annotations
 
 import time
-from itertools import combinations
 
 import numpy as np
 import pycolmap
 
-from ..cameras import CameraInfo
 from ..database import DatabaseContents
 from ..errors import CalibrationError
 from ..pipeline import METHODS, PARAMETER_NAMES, CalibrationOptions, calibrate_contents_methods
 from ..reconstruction import camera_intrinsics, keep_colmap_quiet
 from ..synthetic import SyntheticScene, make_scene, perturbed_prior
+from ..synthetic_database import CAMERA_ID, scene_contents
 from .records import RunRecord
 
 EXPERIMENT = "synthetic"
@@ -56,7 +55,6 @@ SYNTHETIC_METHODS = ("msac-opt", "direct", "fundamental", BA_FLOOR)
 #: Noise half-widths of the paper, pixels.
 NOISE_LEVELS = (0.1, 0.5, 1.0)
 NUM_CAMERAS = 3
-CAMERA_ID = 1
 _TRIFOCAL_METHODS = tuple(m for m in METHODS if m != "fundamental")
 #: Ceres tolerances of the floor's bundle adjustment (tighter than COLMAP's
 #: defaults: the floor should be the converged optimum, not an early stop).
@@ -67,29 +65,6 @@ _BA_FUNCTION_TOLERANCE = 1e-12
 def perturbation_label(fraction: float) -> str:
     """The record's perturbation range in percent, e.g. ``0.05 -> "0-5"``."""
     return f"0-{fraction * 100.0:g}"
-
-
-def scene_contents(scene: SyntheticScene) -> DatabaseContents:
-    """The scene as the contents of a COLMAP database.
-
-    One PINHOLE camera (id 1, params the scene's true intrinsics; a prior is passed
-    to the calibration separately), one image per view (ids ``1..m``, names
-    ``0001.png``, ...), keypoints = the view's observations (track ``k`` is keypoint
-    ``k`` in every image) and, for every pair of images, all tracks as verified
-    matches (outlier tracks included, as a matcher could not tell them apart). No
-    fundamental matrices: the ``fundamental`` method re-fits F from the matches.
-    """
-    camera = CameraInfo(CAMERA_ID, "PINHOLE", scene.width, scene.height, scene.intrinsics)
-    image_ids = range(1, scene.num_cameras + 1)
-    tracks = np.arange(scene.num_points, dtype=np.int64)
-    matches = np.ascontiguousarray(np.stack([tracks, tracks], axis=1))
-    return DatabaseContents(
-        cameras={CAMERA_ID: camera},
-        image_names={i: f"{i:04d}.png" for i in image_ids},
-        image_camera={i: CAMERA_ID for i in image_ids},
-        keypoints={i: np.array(scene.observations[i - 1], dtype=np.float64) for i in image_ids},
-        matches={pair: matches.copy() for pair in combinations(image_ids, 2)},
-    )
 
 
 def min_ba_tracks(num_views: int) -> int:

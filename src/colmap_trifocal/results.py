@@ -1,0 +1,127 @@
+"""What ``calibrate`` returns per camera, and its JSON form (DESIGN.md contract).
+
+Units: intrinsics and their standard deviations in pixels (COLMAP's pixel
+convention, the centre of the top-left pixel at (0.5, 0.5)).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from .parametrization import PARAMETER_NAMES
+from .tensor_estimation import TripletTensor
+
+__all__ = ["PARAMETER_NAMES", "CameraCalibration", "TripletReport"]
+
+
+@dataclass
+class TripletReport:
+    """One image triplet's tensor and how the constraints judged it.
+
+    Attributes:
+        image_ids: database ids of views 1, 2, 3.
+        num_tracks: three-view tracks of the triplet.
+        num_inliers: tracks consistent with the refined tensor.
+        sigma_px: keypoint noise estimated by the triplet's bundle adjustment, px.
+        residual_norm: whitened constraint norm ‖r‖ at the final estimate
+            (≈ sqrt(χ²(7)) for a good tensor at the true K).
+        inlier: ``residual_norm`` below the MSAC threshold τ.
+        candidate: (fx, fy, cx, cy) this tensor alone gives (msac, msac-opt), px.
+        score: MSAC score of ``candidate`` over all tensors (1 perfect, 0 none).
+    """
+
+    image_ids: tuple[int, int, int]
+    num_tracks: int
+    num_inliers: int
+    sigma_px: float
+    residual_norm: float
+    inlier: bool
+    candidate: tuple[float, float, float, float] | None = None
+    score: float | None = None
+
+
+@dataclass
+class CameraCalibration:
+    """The estimate for one camera, as written by ``calibrate --json``.
+
+    ``std`` is None for a parameter the images do not determine (it is then
+    tied or held, see ``assumptions``); ``observable`` says which ones they do;
+    ``unconstrained_std`` is each parameter's std when all of the camera model's
+    parameters are estimated (None where undetermined), which is what decides
+    ``observable`` (below 1 % of the focal length, see :mod:`.observability`).
+    """
+
+    camera_id: int
+    model: str
+    method: str
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    std: dict[str, float | None]
+    observable: dict[str, bool]
+    num_triplets: int
+    num_inlier_triplets: int
+    seconds: float
+    prior: tuple[float, float, float, float]
+    #: (fx, fy, cx, cy) the tensors were normalised with: the prior after the focal
+    #: search (and after the re-estimation when the estimate moved far from it).
+    start: tuple[float, float, float, float]
+    #: What was assumed instead of estimated, e.g. ``["fy = fx"]``; empty normally.
+    assumptions: list[str] = field(default_factory=list)
+    unconstrained_std: dict[str, float | None] = field(default_factory=dict)
+    triplets: list[TripletReport] = field(default_factory=list)
+    tensors: list[TripletTensor] = field(default_factory=list, repr=False)
+
+    @property
+    def intrinsics(self) -> np.ndarray:
+        """(fx, fy, cx, cy) in pixels."""
+        return np.array([self.fx, self.fy, self.cx, self.cy])
+
+    @property
+    def undetermined(self) -> list[str]:
+        """Names of the parameters the images do not determine."""
+        return [name for name in PARAMETER_NAMES if not self.observable[name]]
+
+    def to_json(self) -> dict:
+        """The JSON object of DESIGN.md (plus prior, start, assumptions, triplets)."""
+        data = asdict(self)
+        data.pop("tensors")
+        data["prior"] = dict(zip(PARAMETER_NAMES, self.prior, strict=True))
+        data["start"] = dict(zip(PARAMETER_NAMES, self.start, strict=True))
+        return data
+
+    def warning(self) -> str | None:
+        """One line naming the undetermined parameters and what was done, or None."""
+        if not self.undetermined:
+            return None
+        reasons = []
+        for name in self.undetermined:
+            std = self.unconstrained_std.get(name)
+            if std is None or not math.isfinite(std) or std > 1e6:
+                reasons.append(f"{name} (no information)")
+            else:
+                reasons.append(f"{name} (std {std:.0f} px)")
+        hint = _motion_hint(self.undetermined)
+        action = "; ".join(self.assumptions) if self.assumptions else "kept as estimated"
+        return (
+            f"camera {self.camera_id}: {', '.join(reasons)} not determined by these images"
+            f"{hint}; {action}"
+        )
+
+
+def _motion_hint(undetermined: list[str]) -> str:
+    """A likely cause for a set of undetermined parameters."""
+    if len(undetermined) == 4:
+        return " (pure translation, or too few / too similar images?)"
+    if undetermined in (["fy"], ["fx"]):
+        return " (planar motion: all rotations about one axis?)"
+    return " (forward motion with little rotation, or planar motion?)"
+
+
+def finite_or_none(value: float) -> float | None:
+    """JSON-safe float: None for inf/NaN."""
+    return float(value) if math.isfinite(value) else None

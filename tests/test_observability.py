@@ -1,0 +1,185 @@
+"""Parametrizations, the observability test and the jackknife, on hand-made information."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from colmap_trifocal.observability import (
+    MAX_RELATIVE_STD,
+    effective_std,
+    relative_std,
+    select_model,
+    tolerance,
+)
+from colmap_trifocal.parametrization import (
+    FULL,
+    HELD,
+    SINGLE_FOCAL,
+    Model,
+    candidate_models,
+)
+from colmap_trifocal.selfcalibration import intrinsics_to_theta, theta_to_intrinsics
+from colmap_trifocal.uncertainty import (
+    combined_information,
+    image_groups,
+    jackknife_covariance,
+    jackknife_replicates,
+)
+
+START = np.array([2700.0, 2750.0, 1500.0, 1000.0])
+PRIOR = np.array([2650.0, 2800.0, 1530.0, 990.0])
+TOLERANCES = tolerance(START, 3072, 2048)
+
+
+def information_from_std(std: np.ndarray) -> np.ndarray:
+    """Diagonal information (4, 4) of independent θ with these relative stds (inf: none)."""
+    return np.diag(np.where(np.isfinite(std), 1.0 / np.asarray(std) ** 2, 0.0))
+
+
+@pytest.mark.parametrize("model", candidate_models(FULL))
+def test_parametrization_round_trip_and_held_values(model: Model) -> None:
+    parametrization = model.parametrization(START, PRIOR)
+    rng = np.random.default_rng(0)
+    free = rng.normal(0.0, 0.02, parametrization.dimension)
+    theta = parametrization.theta(free)
+    np.testing.assert_allclose(parametrization.free(theta), free, atol=1e-15)
+    intrinsics = theta_to_intrinsics(theta, START)
+    if model.focal == "tied":
+        assert intrinsics[1] == pytest.approx(intrinsics[0], rel=1e-14)  # fy = fx in pixels
+    if model.focal == "held":
+        np.testing.assert_allclose(intrinsics[:2], PRIOR[:2], rtol=1e-14)
+    for index, free_pp in ((2, model.cx), (3, model.cy)):
+        if not free_pp:
+            assert intrinsics[index] == pytest.approx(PRIOR[index], rel=1e-14)
+    # p = 0 is the start, with held parameters at the prior.
+    start = theta_to_intrinsics(parametrization.theta(np.zeros(parametrization.dimension)), START)
+    expected = START.copy()
+    if model.focal == "tied":
+        expected[1] = START[0]
+    if model.focal == "held":
+        expected[:2] = PRIOR[:2]
+    expected[2:] = np.where([model.cx, model.cy], START[2:], PRIOR[2:])
+    np.testing.assert_allclose(start, expected, rtol=1e-14)
+
+
+def test_candidate_models_are_submodels_largest_first() -> None:
+    models = candidate_models(FULL)
+    assert models[0] == FULL and models[-1] == HELD and len(models) == 12
+    assert [m.dimension for m in models] == sorted((m.dimension for m in models), reverse=True)
+    single = candidate_models(SINGLE_FOCAL)
+    assert all(m.focal != "free" for m in single) and single[0] == SINGLE_FOCAL
+    assert theta_to_intrinsics(intrinsics_to_theta(PRIOR, START), START) == pytest.approx(PRIOR)
+
+
+def test_relative_std_of_a_null_direction_is_infinite() -> None:
+    information = information_from_std(np.array([0.001, np.inf, 0.002, 0.003]))
+    std = relative_std(information, FULL.parametrization(START, PRIOR))
+    np.testing.assert_allclose(std[[0, 2, 3]], [0.001, 0.002, 0.003], rtol=1e-9)
+    assert std[1] == np.inf
+    # Tying fy to fx removes the null direction.
+    tied = relative_std(information, SINGLE_FOCAL.parametrization(START, PRIOR))
+    assert np.all(np.isfinite(tied))
+
+
+def test_noise_free_null_direction_is_caught_by_the_eigenvalue_ratio() -> None:
+    """Whitening by a tiny noise makes every direction look certain in absolute terms."""
+    information = information_from_std(np.array([1e-9, 1e-3, 1e-9, 1e-9]))
+    std = relative_std(information, FULL.parametrization(START, PRIOR))
+    assert std[1] == np.inf and np.all(std[[0, 2, 3]] < 1e-8)
+
+
+def test_undetermined_fy_is_tied_to_fx() -> None:
+    information = information_from_std(np.array([0.001, 0.08, 0.001, 0.001]))
+    model = select_model(information, FULL, FULL, START, PRIOR, TOLERANCES)
+    assert model == Model("tied")
+    assert model.assumptions() == ["fy = fx"]
+    assert model.estimated(single_focal=False) == {
+        "fx": True,
+        "fy": False,
+        "cx": True,
+        "cy": True,
+    }
+
+
+def test_nothing_determined_holds_everything() -> None:
+    information = information_from_std(np.array([0.1, 0.08, 0.05, 0.04]))
+    model = select_model(information, FULL, FULL, START, PRIOR, TOLERANCES)
+    assert model == HELD
+    assert model.assumptions() == ["fx, fy held at the prior", "cx, cy held at the prior"]
+
+
+def test_all_determined_keeps_the_full_model() -> None:
+    information = information_from_std(np.full(4, 0.2 * MAX_RELATIVE_STD))
+    assert select_model(information, FULL, FULL, START, PRIOR, TOLERANCES) == FULL
+
+
+def test_principal_point_tolerance_is_relative_to_the_image_size() -> None:
+    """cx std 0.8 % of f is 1.4 % of half the width: not determined."""
+    np.testing.assert_allclose(TOLERANCES, 0.01 * np.array([1, 1, 1536 / 2700, 1024 / 2750]))
+    information = information_from_std(np.array([0.001, 0.001, 0.008, 0.001]))
+    model = select_model(information, FULL, FULL, START, PRIOR, TOLERANCES)
+    assert model == Model("free", cx=False, cy=True)
+    assert model.assumptions() == ["cx held at the prior"]
+
+
+def test_parameter_coupled_to_a_held_one_is_held_too() -> None:
+    """Only fx + cy and cx are determined: cy alone would absorb a held fx's error.
+
+    With fx held exactly, cy's conditional std would be tiny; counting the held
+    value's own uncertainty (30 %) shows that cy is not determined.
+    """
+    rows = np.array([[1.0, 0.0, 0.0, 1.0], [0.0, 0.0, 1.0, 0.0]]) * 1e4
+    information = rows.T @ rows
+    held_focal = Model("held")
+    conditional = relative_std(information, held_focal.parametrization(START, PRIOR))
+    assert conditional[3] < 1e-3
+    effective = effective_std(information, held_focal, FULL, START, PRIOR)
+    assert effective[3] > MAX_RELATIVE_STD and effective[2] < MAX_RELATIVE_STD
+    model = select_model(information, FULL, FULL, START, PRIOR, TOLERANCES)
+    assert model == Model("held", cx=True, cy=False)
+
+
+def test_single_focal_camera_reports_fy_with_fx() -> None:
+    assert SINGLE_FOCAL.estimated(single_focal=True)["fy"]
+    assert not SINGLE_FOCAL.estimated(single_focal=False)["fy"]
+    assert SINGLE_FOCAL.assumptions() == ["fy = fx"]
+
+
+def test_image_groups_deal_images_round_robin() -> None:
+    groups = image_groups([(1, 2, 3), (2, 3, 4), (4, 5, 6)], max_groups=4)
+    assert groups == [{1, 5}, {2, 6}, {3}, {4}]
+    assert image_groups([(1, 2, 3)], max_groups=10) == [{1}, {2}, {3}]
+
+
+def test_jackknife_needs_enough_groups() -> None:
+    def resolve(keep: np.ndarray) -> np.ndarray:
+        return np.full(4, float(keep.sum()))
+
+    assert jackknife_replicates([(1, 2, 3)], resolve) is None  # dropping any image empties it
+    ids = [(1, 2, 3), (4, 5, 6), (1, 5, 6), (2, 4, 6), (3, 4, 5)]
+    replicates = jackknife_replicates(ids, resolve)
+    assert replicates is not None and replicates.shape == (6, 4)
+
+
+def test_jackknife_covariance_of_known_replicates() -> None:
+    replicates = np.array([[1.0], [2.0], [3.0], [4.0]])
+    # (g − 1)/g Σ (x − x̄)² = 3/4 · 5
+    np.testing.assert_allclose(jackknife_covariance(replicates), [[3.75]])
+
+
+def test_combined_information_keeps_the_larger_variance_per_direction() -> None:
+    curvature = information_from_std(np.array([0.001, 0.001, 0.001, 0.001]))
+    parametrization = FULL.parametrization(START, PRIOR)
+    rng = np.random.default_rng(1)
+    # Replicates spread 0.005 in fx only (10x the variance of the curvature in fx? 25x).
+    replicates = np.zeros((8, 4))
+    replicates[:, 0] = rng.normal(0.0, 0.005, 8)
+    spread = np.sqrt(jackknife_covariance(replicates)[0, 0])
+    combined = combined_information(curvature, replicates, parametrization)
+    std = relative_std(combined, parametrization)
+    assert std[0] == pytest.approx(spread, rel=1e-6)
+    np.testing.assert_allclose(std[1:], 0.001, rtol=1e-6)
+    # Without replicates: the curvature alone.
+    alone = relative_std(combined_information(curvature, None, parametrization), parametrization)
+    np.testing.assert_allclose(alone, 0.001, rtol=1e-9)
