@@ -102,8 +102,16 @@ def test_undetermined_fy_is_tied_to_fx() -> None:
     }
 
 
+def test_weakly_determined_parameters_are_still_estimated() -> None:
+    """Between 1 and 3 tolerances: estimated (not observable), never held at the prior."""
+    information = information_from_std(np.array([0.015, 0.015, 0.001, 0.001]))
+    assert select_model(information, FULL, FULL, START, PRIOR, TOLERANCES) == FULL
+    information = information_from_std(np.array([0.04, 0.04, 0.001, 0.001]))
+    assert select_model(information, FULL, FULL, START, PRIOR, TOLERANCES).focal != "free"
+
+
 def test_nothing_determined_holds_everything() -> None:
-    information = information_from_std(np.array([0.1, 0.08, 0.05, 0.04]))
+    information = information_from_std(np.array([0.3, 0.2, 0.1, 0.1]))
     model = select_model(information, FULL, FULL, START, PRIOR, TOLERANCES)
     assert model == HELD
     assert model.assumptions() == ["fx, fy held at the prior", "cx, cy held at the prior"]
@@ -115,9 +123,9 @@ def test_all_determined_keeps_the_full_model() -> None:
 
 
 def test_principal_point_tolerance_is_relative_to_the_image_size() -> None:
-    """cx std 0.8 % of f is 1.4 % of half the width: not determined."""
+    """cx std 2.0 % of f is 3.5 % of half the width: beyond 3 tolerances, held."""
     np.testing.assert_allclose(TOLERANCES, 0.01 * np.array([1, 1, 1536 / 2700, 1024 / 2750]))
-    information = information_from_std(np.array([0.001, 0.001, 0.008, 0.001]))
+    information = information_from_std(np.array([0.001, 0.001, 0.020, 0.001]))
     model = select_model(information, FULL, FULL, START, PRIOR, TOLERANCES)
     assert model == Model("free", cx=False, cy=True)
     assert model.assumptions() == ["cx held at the prior"]
@@ -183,3 +191,40 @@ def test_combined_information_keeps_the_larger_variance_per_direction() -> None:
     # Without replicates: the curvature alone.
     alone = relative_std(combined_information(curvature, None, parametrization), parametrization)
     np.testing.assert_allclose(alone, 0.001, rtol=1e-9)
+
+
+def test_warning_names_weak_and_held_parameters() -> None:
+    from colmap_trifocal.results import CameraCalibration
+
+    def calibration(std: dict, observable: dict, assumptions: list[str]) -> CameraCalibration:
+        return CameraCalibration(
+            camera_id=3,
+            model="PINHOLE",
+            method="msac-opt",
+            fx=2760.0,
+            fy=2760.0,
+            cx=1520.0,
+            cy=1000.0,
+            std=std,
+            observable=observable,
+            num_triplets=20,
+            num_inlier_triplets=18,
+            seconds=1.0,
+            prior=(2700.0, 2700.0, 1536.0, 1024.0),
+            start=(2700.0, 2700.0, 1536.0, 1024.0),
+            assumptions=assumptions,
+            unconstrained_std={"fx": 41.0, "fy": 230.0, "cx": 3.0, "cy": 4.0},
+        )
+
+    everything = dict.fromkeys(("fx", "fy", "cx", "cy"), True)
+    assert calibration(dict.fromkeys(everything, 2.0), everything, []).warning() is None
+    planar = calibration(
+        {"fx": 41.0, "fy": None, "cx": 3.0, "cy": 4.0},
+        {"fx": False, "fy": False, "cx": True, "cy": True},
+        ["fy = fx"],
+    )
+    assert planar.warning() == (
+        "camera 3: fy (std 230 px) not determined by these images (planar motion: all "
+        "rotations about one axis?); fy = fx; fx (std 41 px) only weakly determined, "
+        "kept as estimated"
+    )

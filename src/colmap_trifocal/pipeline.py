@@ -23,7 +23,7 @@ from .errors import CalibrationError
 from .focal_search import search_focal
 from .fundamental import calibrate_from_fundamentals
 from .log import logger
-from .observability import tolerance
+from .observability import FALLBACK_FACTOR, tolerance
 from .parallel import map_jobs
 from .parametrization import FULL, SINGLE_FOCAL
 from .results import PARAMETER_NAMES, CameraCalibration, TripletReport, finite_or_none
@@ -39,10 +39,11 @@ from .tracks import MatchGraph, Triplet, select_triplets
 from .trifocal import intrinsics_matrix
 
 METHODS = ("msac-opt", "msac", "direct", "fundamental")
-#: See ``CalibrationOptions.restart``. A safety net for gross offsets only: measured
-#: on the Strecha scenes, after the focal search, priors 10–30 % off per parameter
-#: give the same accuracy without the re-estimation (0.147 / 0.158 % vs 0.158 / 0.162 %).
-RESTART_THRESHOLD = 0.15
+#: See ``CalibrationOptions.restart``. Tensors normalised by a start whose principal
+#: point is 10 % of f off (a 28 % prior on fountain-P11's cy) were half outliers
+#: (10 of 20 MSAC inliers), which left cy undetermined; the unconstrained estimate
+#: was still within 0.5 %, and re-estimating from it restored 19–20 inliers.
+RESTART_THRESHOLD = 0.05
 
 
 @dataclass
@@ -77,9 +78,10 @@ class CalibrationOptions:
     #: Triplets (those with most tracks) the focal search uses.
     search_triplets: int = 6
     #: Re-estimate the tensors once from the estimate when it lies more than
-    #: ``RESTART_THRESHOLD`` (relative to the focal length) from the start
-    #: (msac and msac-opt; ``direct`` has no outlier defence, so its far-off
-    #: estimates come from bad tensors, not from the start).
+    #: ``RESTART_THRESHOLD`` (relative to the focal length) from the start, using
+    #: the unconstrained estimate of the parameters it roughly determines
+    #: (:func:`_restart_point`; msac and msac-opt: ``direct`` has no outlier
+    #: defence, so its far-off estimates come from bad tensors, not from the start).
     restart: bool = True
 
 
@@ -304,21 +306,25 @@ def _solve_camera(
 
     start, tensors = prepared.start, prepared.tensors
     fallback = solve_from(start, tensors)
-    estimate = theta_to_intrinsics(fallback.solution.theta, start)
-    if options.restart and method != "direct" and _moved(estimate, start):
+    restart = _restart_point(fallback, start, tolerance(start, camera.width, camera.height))
+    if options.restart and method != "direct" and _moved(restart, start):
         logger.info(
             "camera %d: estimate far from the start; re-estimating the tensors", camera.camera_id
         )
-        start = estimate
+        start = restart
         tensors = _estimate_tensors(
             prepared.triplets, prepared.tracks, start, prepared.seeds, camera, options
         )
         fallback = solve_from(start, tensors)
-        estimate = theta_to_intrinsics(fallback.solution.theta, start)
+    estimate = theta_to_intrinsics(fallback.solution.theta, start)
     solution, model = fallback.solution, fallback.model
     if model != base:
         logger.info("camera %d: assumed %s", camera.camera_id, "; ".join(model.assumptions()))
     estimated = model.estimated(camera.single_focal)
+    within = fallback.relative_std < tolerance(start, camera.width, camera.height)
+    observable = {
+        name: estimated[name] and bool(ok) for name, ok in zip(PARAMETER_NAMES, within, strict=True)
+    }
     focal_scale = np.array([start[0], start[1], start[0], start[1]])
     std = fallback.relative_std * focal_scale
     unconstrained = fallback.unconstrained.relative_std * focal_scale
@@ -331,7 +337,7 @@ def _solve_camera(
             name: finite_or_none(s) if estimated[name] else None
             for name, s in zip(PARAMETER_NAMES, std, strict=True)
         },
-        observable=estimated,
+        observable=observable,
         num_triplets=len(tensors),
         num_inlier_triplets=int(solution.inlier_tensors.sum()),
         seconds=prepared.seconds + time.perf_counter() - clock,
@@ -402,6 +408,26 @@ def _estimate_tensors(
             f"camera {camera.camera_id}: no triplet gave a consistent trifocal tensor"
         )
     return tensors
+
+
+def _restart_point(
+    fallback: FallbackSolution, start: np.ndarray, tolerances: np.ndarray
+) -> np.ndarray:
+    """Where to re-estimate the tensors from: the unconstrained estimate, where trusted.
+
+    Parameters whose unconstrained std exceeds ``FALLBACK_FACTOR`` tolerances keep
+    their start value; an untrusted focal length follows the trusted one with the
+    start's aspect ratio (planar motion leaves fy wandering tens of percent away).
+    """
+    unconstrained = fallback.unconstrained
+    estimate = theta_to_intrinsics(unconstrained.theta, start)
+    trusted = unconstrained.relative_std < FALLBACK_FACTOR * tolerances
+    point = np.where(trusted, estimate, start)
+    if trusted[0] and not trusted[1]:
+        point[1] = point[0] * start[1] / start[0]
+    elif trusted[1] and not trusted[0]:
+        point[0] = point[1] * start[0] / start[1]
+    return point
 
 
 def _moved(estimate: np.ndarray, start: np.ndarray) -> bool:

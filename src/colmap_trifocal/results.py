@@ -47,11 +47,12 @@ class TripletReport:
 class CameraCalibration:
     """The estimate for one camera, as written by ``calibrate --json``.
 
-    ``std`` is None for a parameter the images do not determine (it is then
-    tied or held, see ``assumptions``); ``observable`` says which ones they do;
-    ``unconstrained_std`` is each parameter's std when all of the camera model's
-    parameters are estimated (None where undetermined), which is what decides
-    ``observable`` (below 1 % of the focal length, see :mod:`.observability`).
+    ``observable`` is True where the std is below 1 % of the parameter's scale
+    (the focal length; half the image size for the principal point, see
+    :mod:`.observability`). Other parameters are either still estimated (weakly
+    determined, std up to 3 tolerances) or tied / held (``std`` None, see
+    ``assumptions``). ``unconstrained_std`` is each parameter's std when all of
+    the camera model's parameters are estimated (None where undetermined).
     """
 
     camera_id: int
@@ -95,22 +96,33 @@ class CameraCalibration:
         return data
 
     def warning(self) -> str | None:
-        """One line naming the undetermined parameters and what was done, or None."""
-        if not self.undetermined:
+        """One line naming the parameters that are not observable and what was done, or None.
+
+        Tied or held parameters are named with their unconstrained std and the
+        assumption made; weakly determined ones (estimated, std above tolerance)
+        with their std.
+        """
+        fixed = [name for name in self.undetermined if self.std[name] is None]
+        weak = [name for name in self.undetermined if self.std[name] is not None]
+        if not fixed and not weak:
             return None
-        reasons = []
-        for name in self.undetermined:
-            std = self.unconstrained_std.get(name)
-            if std is None or not math.isfinite(std) or std > 1e6:
-                reasons.append(f"{name} (no information)")
-            else:
-                reasons.append(f"{name} (std {std:.0f} px)")
-        hint = _motion_hint(self.undetermined)
-        action = "; ".join(self.assumptions) if self.assumptions else "kept as estimated"
-        return (
-            f"camera {self.camera_id}: {', '.join(reasons)} not determined by these images"
-            f"{hint}; {action}"
-        )
+        parts = []
+        if fixed:
+            reasons = []
+            for name in fixed:
+                std = self.unconstrained_std.get(name)
+                if std is None or not math.isfinite(std) or std > 1e6:
+                    reasons.append(f"{name} (no information)")
+                else:
+                    reasons.append(f"{name} (std {std:.0f} px)")
+            parts.append(
+                f"{', '.join(reasons)} not determined by these images"
+                f"{_motion_hint(fixed)}; {'; '.join(self.assumptions)}"
+            )
+        if weak:
+            stds = ", ".join(f"{name} (std {self.std[name]:.0f} px)" for name in weak)
+            parts.append(f"{stds} only weakly determined, kept as estimated")
+        return f"camera {self.camera_id}: " + "; ".join(parts)
 
 
 def _motion_hint(undetermined: list[str]) -> str:
