@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import resource
 import shutil
 import sys
 import time
@@ -105,13 +106,32 @@ def database_summary(database: Path) -> dict[str, float]:
     }
 
 
+def cpu_seconds() -> float:
+    """User + system CPU seconds of this process (all threads) and its waited-for children."""
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+def load_average() -> float:
+    """The 1-minute load average (other work on the machine skews wall-clock times)."""
+    return os.getloadavg()[0]
+
+
 class Stopwatch:
-    """``with Stopwatch() as w: ...``; then ``w.seconds``."""
+    """``with Stopwatch() as w: ...``; then ``w.seconds`` (wall) and ``w.cpu`` (CPU seconds).
+
+    CPU seconds include this process's threads (pycolmap's mapper) and the worker
+    processes it started and joined (calibrate's pool); they are less sensitive than
+    wall-clock time to other processes competing for the cores.
+    """
 
     def __enter__(self) -> Stopwatch:
         self.start = time.perf_counter()
-        self.seconds = float("nan")
+        self.cpu_start = cpu_seconds()
+        self.seconds = self.cpu = float("nan")
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.seconds = time.perf_counter() - self.start
+        self.cpu = cpu_seconds() - self.cpu_start

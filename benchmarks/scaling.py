@@ -31,6 +31,10 @@ surface faces) and one of these view graphs:
 * ``exhaustive``: every pair that shares at least 15 points (COLMAP's minimum
   number of inliers for a verified pair).
 
+Wall-clock times are inflated when other processes compete for the cores: the
+table also gives the CPU seconds of the subprocess tree and the 1-minute load
+average when each run started.
+
 A share ``--outliers`` of each pair's verified matches are wrong (random keypoint
 pairs), as geometric verification lets some through. The true F is stored.
 
@@ -42,6 +46,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import resource
 import sqlite3
 import subprocess
 import sys
@@ -72,6 +78,8 @@ class Measurement:
     inlier_triplets: int | None = None
     calibrate_seconds: float | None = None
     process_seconds: float | None = None
+    process_cpu_seconds: float | None = None
+    load_average: float | None = None
     peak_pss_mb: float | None = None
     peak_rss_mb: float | None = None
     error_percent: float | None = None
@@ -262,6 +270,8 @@ def measure(
         str(seed),
     ]
     peak_pss = peak_rss = 0.0
+    result.load_average = os.getloadavg()[0]
+    cpu_start = children_cpu()
     start = time.perf_counter()
     with log.open("w") as stderr:
         child = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=stderr, text=True)
@@ -277,6 +287,7 @@ def measure(
             time.sleep(interval)
         output = child.stdout.read() if child.stdout else ""
     result.process_seconds = time.perf_counter() - start
+    result.process_cpu_seconds = children_cpu() - cpu_start
     result.peak_pss_mb, result.peak_rss_mb = peak_pss / 2**20, peak_rss / 2**20
     if result.status != "ok":
         return result
@@ -289,6 +300,12 @@ def measure(
     truth = np.array(info["truth"])
     result.error_percent = float(np.mean(np.abs(np.array(data["intrinsics"]) / truth - 1)) * 100)
     return result
+
+
+def children_cpu() -> float:
+    """User + system CPU seconds of the finished (waited-for) subprocesses and theirs."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def last_line(log: Path) -> str:
@@ -333,14 +350,16 @@ def print_table(rows: list[Measurement]) -> None:
 
     print(
         "| graph | images | pairs | view-graph triplets | triplets used (inliers) | "
-        "calibrate s | process s | peak PSS MB | peak RSS MB | error % | status |"
+        "calibrate s | process s | process CPU s | load | peak PSS MB | peak RSS MB | error % "
+        "| status |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         used = "-" if r.triplets is None else f"{r.triplets} ({r.inlier_triplets})"
         print(
             f"| {r.graph} | {r.images} | {r.pairs} | {r.view_graph_triplets} | {used} | "
             f"{fmt(r.calibrate_seconds, '.2f')} | {fmt(r.process_seconds, '.2f')} | "
+            f"{fmt(r.process_cpu_seconds, '.2f')} | {fmt(r.load_average, '.1f')} | "
             f"{fmt(r.peak_pss_mb, '.0f')} | {fmt(r.peak_rss_mb, '.0f')} | "
             f"{fmt(r.error_percent, '.3f')} | {r.status} |"
         )

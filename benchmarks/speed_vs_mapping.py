@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tempfile
 from dataclasses import dataclass, field
@@ -37,6 +38,7 @@ from benchlib import (
     Stopwatch,
     copy_with_camera,
     database_summary,
+    load_average,
     mean_relative_error,
     parse_intrinsics,
     quiet_stderr,
@@ -55,12 +57,21 @@ class Timing:
 
     name: str
     seconds: list[float] = field(default_factory=list)
+    cpu: list[float] = field(default_factory=list)
     estimate: np.ndarray | None = None
     note: str = ""
 
     @property
     def median(self) -> float:
         return float(np.median(self.seconds)) if self.seconds else float("nan")
+
+    @property
+    def median_cpu(self) -> float:
+        return float(np.median(self.cpu)) if self.cpu else float("nan")
+
+    def add(self, watch: Stopwatch) -> None:
+        self.seconds.append(watch.seconds)
+        self.cpu.append(watch.cpu)
 
 
 def build_if_missing(database: Path, images: Path, max_image_size: int) -> float:
@@ -81,20 +92,20 @@ def build_if_missing(database: Path, images: Path, max_image_size: int) -> float
 
 def time_calibrate(
     database: Path, method: str, prior: np.ndarray, seed: int, workers: int | None
-) -> tuple[float, np.ndarray, str]:
-    """One full ``calibrate_database`` call: seconds, (fx, fy, cx, cy), a note."""
+) -> tuple[Stopwatch, np.ndarray, str]:
+    """One full ``calibrate_database`` call: its stopwatch, (fx, fy, cx, cy), a note."""
     options = CalibrationOptions(
         method=method, prior=tuple(map(float, prior)), seed=seed, workers=workers
     )
     with Stopwatch() as watch:
         (result,) = calibrate_database(database, options)
     note = f"{result.num_inlier_triplets}/{result.num_triplets} triplets"
-    return watch.seconds, result.intrinsics, note
+    return watch, result.intrinsics, note
 
 
 def time_view_graph(
     database: Path, prior: np.ndarray, seed: int, work: Path
-) -> tuple[float, np.ndarray]:
+) -> tuple[Stopwatch, np.ndarray]:
     """``pycolmap.calibrate_view_graph`` on a copy started from ``prior``: seconds, estimate."""
     copy = copy_with_camera(database, work / "view_graph.db", prior)
     options = pycolmap.ViewGraphCalibrationOptions()
@@ -104,15 +115,15 @@ def time_view_graph(
         ok = pycolmap.calibrate_view_graph(str(copy), options)
     estimate = stored_intrinsics(copy) if ok else np.full(4, np.nan)
     copy.unlink()
-    return watch.seconds, estimate
+    return watch, estimate
 
 
 def time_mapping(
     database: Path, prior: np.ndarray, images: Path | None, seed: int, work: Path
-) -> tuple[float, float, np.ndarray, np.ndarray, int, int]:
+) -> tuple[Stopwatch, Stopwatch | None, np.ndarray, np.ndarray, int, int]:
     """Incremental mapping refining f and pp on a copy, then global BA of f and pp.
 
-    Returns mapping seconds, BA seconds, the camera after mapping and after the
+    Returns the stopwatches of mapping and of the BA, the camera after mapping and after the
     global bundle adjustment, registered and total images.
     """
     copy = copy_with_camera(database, work / "mapping.db", prior)
@@ -127,7 +138,7 @@ def time_mapping(
     with Stopwatch() as watch, quiet_stderr():
         models = pycolmap.incremental_mapping(copy, images or output, output, options)
     if not models:
-        return watch.seconds, float("nan"), np.full(4, np.nan), np.full(4, np.nan), 0, 0
+        return watch, None, np.full(4, np.nan), np.full(4, np.nan), 0, 0
     model = max(models.values(), key=lambda r: r.num_reg_images())
     mapped = camera_of(model)
     ba = pycolmap.BundleAdjustmentOptions()
@@ -141,7 +152,7 @@ def time_mapping(
     with pycolmap.Database.open(str(copy)) as db:
         total = db.num_images()
     copy.unlink()
-    return watch.seconds, ba_watch.seconds, mapped, refined, model.num_reg_images(), total
+    return watch, ba_watch, mapped, refined, model.num_reg_images(), total
 
 
 def camera_of(model: pycolmap.Reconstruction) -> np.ndarray:
@@ -158,27 +169,43 @@ def camera_of(model: pycolmap.Reconstruction) -> np.ndarray:
 
 
 def print_table(
-    timings: list[Timing], mapping: float, truth: np.ndarray | None, prior: np.ndarray
+    timings: list[Timing],
+    mapping: float,
+    mapping_cpu: float,
+    truth: np.ndarray | None,
+    prior: np.ndarray,
 ) -> None:
-    """Markdown table: method, median seconds, all runs, mapping / method, error."""
-    print("| method | median s | runs s | mapping / method | error % | fx | fy | cx | cy | note |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    """Markdown table: method, median wall and CPU seconds, runs, mapping / method, error."""
+    print(
+        "| method | median s | runs s | CPU s | mapping / method (wall) | (CPU) | error % "
+        "| fx | fy | cx | cy | note |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     if truth is not None:
         print(
-            f"| (start: the prior) | - | - | - | {mean_relative_error(prior, truth):.3f} | "
+            f"| (start: the prior) | - | - | - | - | - | {mean_relative_error(prior, truth):.3f} | "
             + " | ".join(f"{v:.1f}" for v in prior)
             + " | |"
         )
     for t in timings:
         runs = ", ".join(f"{s:.2f}" for s in t.seconds)
         ratio = mapping / t.median if t.median > 0 and not t.name.startswith(" ") else np.nan
+        ratio_cpu = (
+            mapping_cpu / t.median_cpu
+            if t.median_cpu > 0 and not t.name.startswith(" ")
+            else np.nan
+        )
         if t.estimate is None:
             error, values = "-", " | ".join("-" for _ in PARAMETER_NAMES)
         else:
             error = f"{mean_relative_error(t.estimate, truth):.3f}" if truth is not None else "-"
             values = " | ".join(f"{v:.1f}" for v in t.estimate)
         shown = "-" if np.isnan(ratio) else f"{ratio:.1f}"
-        print(f"| {t.name} | {t.median:.2f} | {runs} | {shown} | {error} | {values} | {t.note} |")
+        shown_cpu = "-" if np.isnan(ratio_cpu) else f"{ratio_cpu:.1f}"
+        print(
+            f"| {t.name} | {t.median:.2f} | {runs} | {t.median_cpu:.2f} | {shown} | {shown_cpu} "
+            f"| {error} | {values} | {t.note} |"
+        )
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -237,36 +264,38 @@ def main(argv: list[str] | None = None) -> None:
     )
 
     timings: list[Timing] = []
-    mapping_seconds = float("nan")
+    mapping_seconds = mapping_cpu = float("nan")
+    load_before = load_average()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for method in methods:
             if method in CALIBRATE_METHODS:
                 timing = Timing(f"calibrate {method}")
                 for run in range(args.runs):
-                    seconds, estimate, note = time_calibrate(
+                    watch, estimate, note = time_calibrate(
                         args.database, method, prior, args.seed + run, args.workers
                     )
-                    timing.seconds.append(seconds)
+                    timing.add(watch)
                     timing.estimate, timing.note = estimate, note
             elif method == "view_graph":
                 timing = Timing("pycolmap.calibrate_view_graph (focal only)")
                 for run in range(args.runs):
-                    seconds, estimate = time_view_graph(args.database, prior, args.seed + run, work)
-                    timing.seconds.append(seconds)
+                    watch, estimate = time_view_graph(args.database, prior, args.seed + run, work)
+                    timing.add(watch)
                     timing.estimate = estimate
             elif method == "mapping":
                 timing = Timing("pycolmap.incremental_mapping (refine f, pp)")
                 ba = Timing("  + global BA of f, pp (after mapping)")
                 for run in range(args.runs):
-                    seconds, ba_seconds, mapped, refined, registered, total = time_mapping(
+                    watch, ba_watch, mapped, refined, registered, total = time_mapping(
                         args.database, prior, args.images, args.seed + run, work
                     )
-                    timing.seconds.append(seconds)
-                    ba.seconds.append(ba_seconds)
+                    timing.add(watch)
+                    if ba_watch is not None:
+                        ba.add(ba_watch)
                     timing.estimate, ba.estimate = mapped, refined
                     timing.note = f"registered {registered}/{total} images"
-                mapping_seconds = timing.median
+                mapping_seconds, mapping_cpu = timing.median, timing.median_cpu
                 timings += [timing, ba]
                 print(f"  {timing.name}: {timing.median:.2f} s", flush=True)
                 continue
@@ -275,8 +304,12 @@ def main(argv: list[str] | None = None) -> None:
             timings.append(timing)
             print(f"  {timing.name}: {timing.median:.2f} s", flush=True)
 
-    print()
-    print_table(timings, mapping_seconds, truth, prior)
+    print(
+        f"\n1-minute load average: {load_before:.2f} before, {load_average():.2f} after "
+        f"({os.cpu_count()} cores; a load above the core count means other processes "
+        "competed for the CPU and wall-clock times are inflated)"
+    )
+    print_table(timings, mapping_seconds, mapping_cpu, truth, prior)
     if args.json:
         args.json.write_text(
             json.dumps(
@@ -285,10 +318,12 @@ def main(argv: list[str] | None = None) -> None:
                     "summary": summary,
                     "prior": prior.tolist(),
                     "truth": None if truth is None else truth.tolist(),
+                    "load_average": [load_before, load_average()],
                     "results": [
                         {
                             "name": t.name,
                             "seconds": t.seconds,
+                            "cpu_seconds": t.cpu,
                             "estimate": None if t.estimate is None else t.estimate.tolist(),
                             "note": t.note,
                         }
