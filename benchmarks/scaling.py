@@ -371,6 +371,7 @@ def plot(rows: list[Measurement], path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for graph in sorted({r.graph for r in rows}):
@@ -385,6 +386,9 @@ def plot(rows: list[Measurement], path: Path) -> None:
     for ax, label in zip(axes, ("calibrate seconds", "peak PSS of the tree, MB"), strict=True):
         ax.set_xscale("log")
         ax.set_yscale("log")
+        for axis in (ax.xaxis, ax.yaxis):
+            axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+            axis.set_minor_formatter(FuncFormatter(lambda v, _: ""))
         ax.set_xlabel("images")
         ax.set_ylabel(label)
         ax.grid(True, which="both", alpha=0.3)
