@@ -111,8 +111,10 @@ def function_table(stats: pstats.Stats) -> str:
 
 
 def top(stats: pstats.Stats, key: str, count: int) -> str:
+    """The ``count`` first rows of the profile sorted by ``key``."""
     stream = io.StringIO()
-    pstats.Stats(stats, stream=stream).sort_stats(key).print_stats(count)
+    stats.stream = stream  # type: ignore[attr-defined]
+    stats.sort_stats(key).print_stats(count)
     text = stream.getvalue()
     return text[text.find("   ncalls") :]
 

@@ -255,7 +255,13 @@ def kill_tree(process: psutil.Process) -> None:
 
 
 def measure(
-    database: Path, info: dict, seed: int, timeout: float, interval: float, log: Path
+    database: Path,
+    info: dict,
+    seed: int,
+    timeout: float,
+    interval: float,
+    log: Path,
+    workers: int | None = None,
 ) -> Measurement:
     """calibrate_database in a fresh subprocess, sampling the memory of its process tree."""
     result = Measurement(info["graph"], info["images"], info["pairs"], info["view_graph_triplets"])
@@ -268,6 +274,7 @@ def measure(
         ",".join(map(str, info["prior"])),
         "--seed",
         str(seed),
+        *(["--workers", str(workers)] if workers is not None else []),
     ]
     peak_pss = peak_rss = 0.0
     result.load_average = os.getloadavg()[0]
@@ -315,7 +322,7 @@ def last_line(log: Path) -> str:
     return lines[-1] if lines else "(empty)"
 
 
-def child_main(database: Path, prior: str, seed: int) -> None:
+def child_main(database: Path, prior: str, seed: int, workers: int | None) -> None:
     """Run in the subprocess: one calibrate_database call, result as one JSON line."""
     import logging
 
@@ -328,6 +335,7 @@ def child_main(database: Path, prior: str, seed: int) -> None:
         prior=tuple(float(v) for v in prior.split(",")),
         seed=seed,
         progress=True,
+        workers=workers,
     )
     start = time.perf_counter()
     (camera,) = calibrate_database(database, options)
@@ -416,13 +424,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--outliers", type=float, default=0.1, help="share of wrong matches")
     parser.add_argument("--timeout", type=float, default=600.0, help="seconds per calibrate run")
     parser.add_argument("--interval", type=float, default=0.05, help="memory sampling, seconds")
+    parser.add_argument(
+        "--workers", type=int, help="calibrate's worker processes (default: its own, one per core)"
+    )
     parser.add_argument("--plot", type=Path, help="write a PNG of time and memory vs images")
     parser.add_argument("--json", type=Path, help="write the measurements here")
     parser.add_argument("--child", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--prior", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child is not None:
-        child_main(args.child, args.prior, args.seed)
+        child_main(args.child, args.prior, args.seed, args.workers)
         return
 
     pycolmap.logging.minloglevel = 2
@@ -450,7 +461,8 @@ def main(argv: list[str] | None = None) -> None:
             )
             row = measure(
                 database, info, args.seed, args.timeout, args.interval,
-                database.with_suffix(".log"),
+                database.with_suffix(f".workers{args.workers}.log" if args.workers else ".log"),
+                args.workers,
             )  # fmt: skip
             rows.append(row)
             print(
