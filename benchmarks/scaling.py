@@ -39,7 +39,7 @@ A share ``--outliers`` of each pair's verified matches are wrong (random keypoin
 pairs), as geometric verification lets some through. The true F is stored.
 
     python benchmarks/scaling.py [--sizes 10,30,100,300] [--graphs knn,exhaustive] \\
-        [--out /work/bench_data/synthetic] [--plot scaling.png]
+        [--out benchmark_output/synthetic] [--plot scaling.png]
 """
 
 from __future__ import annotations
@@ -416,7 +416,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--exhaustive-max", type=int, default=300, help="skip exhaustive graphs above this size"
     )
-    parser.add_argument("--out", type=Path, default=Path("/work/bench_data/synthetic"))
+    parser.add_argument(
+        "--out", type=Path, default=Path("benchmark_output/synthetic"), help="database cache"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--points", type=int, default=6000, help="3D points (unit sphere)")
     parser.add_argument("--keypoints", type=int, default=8000, help="keypoints per image")
