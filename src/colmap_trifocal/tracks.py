@@ -3,17 +3,36 @@
 A track of the triplet (i, j, k) is a keypoint of image i matched to a keypoint
 of j and one of k, where the verified matches of (j, k) also link those two
 keypoints: the 3-cycle check removes most mismatches before any tensor is fit.
-Triplets are ranked by their number of tracks.
+
+Selection, bounded for large databases (:func:`select_triplets`):
+
+1. candidates: triangles of the view graph within each image's
+   ``NEIGHBOURS_PER_IMAGE`` best-matched neighbours (linear in the number of
+   images; every triangle when there are at most that many images), ranked by
+   an upper bound on their track count, the smallest of their three pairs'
+   match counts;
+2. exact tracks for the best-ranked candidates and the best of every image,
+   more in batches if too few reach ``min_tracks``;
+3. greedy spread over the view graph (:func:`spread_triplets`).
+
+Memory: keypoint lookup tables (int32, one per ordered pair) are built only for
+the pairs of evaluated candidates, and only those candidates' tracks are kept.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from itertools import combinations
+from itertools import chain, combinations
 
 import numpy as np
 
 Pair = tuple[int, int]
+
+#: Best-matched neighbours of an image among which its candidate triplets are formed.
+NEIGHBOURS_PER_IMAGE = 10
+#: Exact tracks are computed for this many times ``max_triplets`` best candidates
+#: (by their bound) per batch, plus every image's best candidate.
+CANDIDATES_PER_TRIPLET = 3
 
 
 @dataclass(frozen=True)
@@ -25,7 +44,7 @@ class Triplet:
 
 
 class MatchGraph:
-    """Verified matches as keypoint lookup tables, one per ordered image pair."""
+    """Verified matches of image pairs, with keypoint lookup tables built on demand."""
 
     def __init__(self, matches: dict[Pair, np.ndarray], num_keypoints: dict[int, int]):
         """Args:
@@ -33,35 +52,81 @@ class MatchGraph:
         num_keypoints: image id -> number of keypoints.
         """
         self.num_keypoints = num_keypoints
-        self._lookup: dict[Pair, np.ndarray] = {}
-        for (a, b), m in matches.items():
-            if len(m) == 0:
-                continue
-            self._lookup[(a, b)] = self._table(m[:, 0], m[:, 1], num_keypoints[a])
-            self._lookup[(b, a)] = self._table(m[:, 1], m[:, 0], num_keypoints[b])
+        self._matches = {pair: m for pair, m in matches.items() if len(m)}
+        self._tables: dict[Pair, np.ndarray] = {}
 
-    @staticmethod
-    def _table(source: np.ndarray, target: np.ndarray, size: int) -> np.ndarray:
-        table = np.full(size, -1, dtype=np.int64)
-        table[source] = target
-        return table
+    def match_count(self, a: int, b: int) -> int:
+        """Verified matches between images a and b (0 if none)."""
+        m = self._matches.get((min(a, b), max(a, b)))
+        return 0 if m is None else len(m)
 
     def neighbours(self) -> dict[int, set[int]]:
         """Image id -> ids it has verified matches with."""
         graph: dict[int, set[int]] = {}
-        for a, b in self._lookup:
+        for a, b in self._matches:
             graph.setdefault(a, set()).add(b)
+            graph.setdefault(b, set()).add(a)
         return graph
+
+    def _lookup(self, a: int, b: int) -> np.ndarray | None:
+        """Keypoint of b matched to each keypoint of a (−1: none), int32; cached."""
+        table = self._tables.get((a, b))
+        if table is None:
+            m = self._matches.get((min(a, b), max(a, b)))
+            if m is None:
+                return None
+            source, target = (m[:, 0], m[:, 1]) if a < b else (m[:, 1], m[:, 0])
+            table = np.full(self.num_keypoints[a], -1, dtype=np.int32)
+            table[source] = target
+            self._tables[(a, b)] = table
+        return table
 
     def tracks(self, i: int, j: int, k: int) -> np.ndarray:
         """Keypoint indices (n, 3) of the 3-cycle-consistent tracks of (i, j, k)."""
-        ij, ik, jk = self._lookup.get((i, j)), self._lookup.get((i, k)), self._lookup.get((j, k))
+        ij, ik, jk = self._lookup(i, j), self._lookup(i, k), self._lookup(j, k)
         if ij is None or ik is None or jk is None:
             return np.empty((0, 3), dtype=np.int64)
         seeds = np.flatnonzero((ij >= 0) & (ik >= 0))
         in_j, in_k = ij[seeds], ik[seeds]
         consistent = jk[in_j] == in_k
-        return np.column_stack([seeds[consistent], in_j[consistent], in_k[consistent]])
+        return np.column_stack([seeds[consistent], in_j[consistent], in_k[consistent]]).astype(
+            np.int64
+        )
+
+
+def candidate_triplets(
+    graph: MatchGraph, image_ids: list[int], neighbours_per_image: int | None
+) -> tuple[list[tuple[int, int, int]], np.ndarray]:
+    """Triangles of the view graph among ``image_ids`` and their track bounds.
+
+    With ``neighbours_per_image`` only triangles within some image's that many
+    best-matched neighbours (None: all triangles). Returns the sorted id triples
+    and the bound (min of the three pair match counts), best bound first.
+    """
+    allowed = set(image_ids)
+    adjacent = {i: n & allowed for i, n in graph.neighbours().items() if i in allowed}
+    if neighbours_per_image is None:
+        close = adjacent
+    else:
+        close = {
+            i: set(sorted(n, key=lambda j: (-graph.match_count(i, j), j))[:neighbours_per_image])
+            for i, n in adjacent.items()
+        }
+    triangles = set()
+    for i, near in close.items():
+        for j, k in combinations(sorted(near), 2):
+            if k in adjacent.get(j, ()):
+                triangles.add(tuple(sorted((i, j, k))))
+    ordered = sorted(triangles)
+    bounds = np.array(
+        [
+            min(graph.match_count(i, j), graph.match_count(i, k), graph.match_count(j, k))
+            for i, j, k in ordered
+        ],
+        dtype=np.int64,
+    )
+    order = np.argsort(-bounds, kind="stable")
+    return [ordered[o] for o in order], bounds[order]
 
 
 def select_triplets(
@@ -69,29 +134,41 @@ def select_triplets(
     image_ids: list[int],
     min_tracks: int = 40,
     max_triplets: int | None = 100,
+    neighbours_per_image: int | None = NEIGHBOURS_PER_IMAGE,
 ) -> list[Triplet]:
-    """Triplets of ``image_ids`` with at least ``min_tracks`` tracks, spread over the images.
+    """Up to ``max_triplets`` triplets with at least ``min_tracks`` tracks, spread over the images.
 
-    Only triplets whose three pairs all have verified matches are considered. At
-    most ``max_triplets`` are returned (None: all, most tracks first), chosen by
-    :func:`spread_triplets`.
+    See the module docstring for the steps. ``max_triplets=None`` evaluates every
+    triangle of the view graph and returns all that qualify, most tracks first.
     """
-    neighbours = graph.neighbours()
-    allowed = set(image_ids)
-    triplets = []
-    for i, j in combinations(sorted(allowed), 2):
-        if j not in neighbours.get(i, ()):
-            continue
-        for k in sorted(neighbours[i] & neighbours.get(j, set()) & allowed):
-            if k <= j:
-                continue
-            indices = graph.tracks(i, j, k)
-            if len(indices) >= min_tracks:
-                triplets.append(Triplet((i, j, k), indices))
-    triplets.sort(key=lambda t: -len(t.keypoint_indices))
-    if max_triplets is None or len(triplets) <= max_triplets:
-        return triplets
-    return spread_triplets(triplets, max_triplets)
+    if max_triplets is None:
+        ids, _ = candidate_triplets(graph, image_ids, None)
+        triplets = [Triplet(t, graph.tracks(*t)) for t in ids]
+        triplets = [t for t in triplets if len(t.keypoint_indices) >= min_tracks]
+        return sorted(triplets, key=lambda t: -len(t.keypoint_indices))
+    ids, bounds = candidate_triplets(graph, image_ids, neighbours_per_image)
+    ids = [t for t, bound in zip(ids, bounds, strict=True) if bound >= min_tracks]
+    batch = CANDIDATES_PER_TRIPLET * max_triplets
+    # The best-bounded candidates and every image's best one (view-graph coverage)
+    # first; further candidates, by bound, only while too few qualify.
+    best_of_image: dict[int, int] = {}
+    for index, triple in enumerate(ids):
+        for image in triple:
+            best_of_image.setdefault(image, index)
+    priority = sorted(set(range(min(batch, len(ids)))) | set(best_of_image.values()))
+    taken = set(priority)
+    rest = (index for index in range(len(ids)) if index not in taken)
+    evaluated: list[Triplet] = []
+    for position, index in enumerate(chain(priority, rest)):
+        if position >= len(priority) and len(evaluated) >= batch:
+            break
+        indices = graph.tracks(*ids[index])
+        if len(indices) >= min_tracks:
+            evaluated.append(Triplet(ids[index], indices))
+    evaluated.sort(key=lambda t: -len(t.keypoint_indices))
+    if len(evaluated) <= max_triplets:
+        return evaluated
+    return spread_triplets(evaluated, max_triplets)
 
 
 def spread_triplets(candidates: list[Triplet], count: int) -> list[Triplet]:
