@@ -42,6 +42,8 @@ def test_run_from_database(demo_database: tuple[Path, np.ndarray], tmp_path: Pat
     assert np.mean(np.abs(trifocal / truth - 1)) < 0.005
     assert np.mean(np.abs(refined / truth - 1)) < 0.005
     np.testing.assert_allclose(_intrinsics(camera["difference"]), refined - trifocal)
+    assert camera["observable"] == dict.fromkeys(("fx", "fy", "cx", "cy"), True)
+    assert camera["assumptions"] == [] and camera["warning"] is None
     assert 0 < report["mean_reprojection_error_px"] < 2.0
     assert json.loads((workspace / "report.json").read_text()) == report
     model = pycolmap.Reconstruction(workspace / "sparse" / "0")

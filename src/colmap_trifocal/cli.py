@@ -207,6 +207,9 @@ def _run_pipeline(args: argparse.Namespace) -> int:
     images = args.images if args.database is None or args.images.is_dir() else None
     report = run_pipeline(images, args.workspace, options)
     print(format_report(report))
+    for camera in report["cameras"]:
+        if camera["warning"] is not None:
+            print(f"warning: {camera['warning']}", file=sys.stderr)
     return 0
 
 

@@ -60,10 +60,12 @@ class CalibrationOptions:
     #: Cameras to calibrate; None: all cameras with at least 3 images.
     camera_ids: list[int] | None = None
     seed: int = 0
-    #: Triplets used per camera (the ones with most tracks). Measured on the Strecha
-    #: scenes (±5 % priors, 10 seeds): 20 triplets are as accurate as 30 (fountain
-    #: 0.152 vs 0.153 %, Herz-Jesus 0.122 vs 0.150 %) and 30 % faster.
-    max_triplets: int = 20
+    #: Triplets used per camera, spread over the view graph (:mod:`.tracks`); None:
+    #: every triplet with enough tracks. Measured on the Strecha scenes (±5 % priors,
+    #: 10 seeds): 20 triplets are as accurate as 30 (fountain 0.152 vs 0.153 %,
+    #: Herz-Jesus 0.122 vs 0.150 %) and 30 % faster; see also
+    #: ``benchmarks/triplet_sampling.py``.
+    max_triplets: int | None = 20
     min_tracks: int = 40
     tau: float = MSAC_TAU
     tensor: TensorEstimationOptions = field(default_factory=TensorEstimationOptions)

@@ -198,6 +198,9 @@ def build_report(
                 "model": calibration.model,
                 "trifocal": dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True)),
                 "trifocal_std": calibration.std,
+                "observable": calibration.observable,
+                "assumptions": calibration.assumptions,
+                "warning": calibration.warning(),
                 "refined": dict(zip(PARAMETER_NAMES, map(float, refined), strict=True)),
                 "difference": dict(
                     zip(PARAMETER_NAMES, map(float, refined - estimate), strict=True)
