@@ -348,6 +348,7 @@ CASES: dict[str, Case] = {
     "--json into a missing folder": Case(
         _copy, "does not exist", ("--json", "/nonexistent-folder/result.json")
     ),
+    "--json is a folder": Case(_copy, "/tmp is not a writable file", ("--json", "/tmp")),
     "no space for the temporary copy": Case(
         _copy, "cannot copy the database to the temporary folder", preexec_fn=limit_file_size
     ),

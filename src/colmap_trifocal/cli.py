@@ -184,12 +184,16 @@ def _write_text(path: Path, text: str) -> None:
         raise
 
 
-def _check_output_folder(path: Path, option: str) -> None:
-    """Refuse an output path whose folder is missing or read-only (before any work)."""
-    folder = path.parent
+def _check_output(path: Path, option: str) -> None:
+    """Refuse an output that :func:`_write_text` cannot write, before any work is done."""
+    if path.exists() and not path.is_file():  # a device or a pipe, written directly
+        if path.is_dir() or not os.access(path, os.W_OK):
+            raise CalibrationError(f"cannot write {option}: {path} is not a writable file")
+        return
+    folder = Path(os.path.realpath(path)).parent
     if not folder.is_dir():
         raise CalibrationError(f"cannot write {option}: folder {folder} does not exist")
-    if not os.access(folder, os.W_OK) and not (path.exists() and os.access(path, os.W_OK)):
+    if not os.access(folder, os.W_OK):  # the new file is made next to it, then renamed
         raise CalibrationError(f"cannot write {option}: folder {folder} is not writable")
 
 
@@ -211,7 +215,7 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     if args.max_triplets < 1:
         raise CalibrationError("--max-triplets must be at least 1")
     if args.json is not None:
-        _check_output_folder(args.json, "--json")
+        _check_output(args.json, "--json")
     if args.write:  # refuse a read-only database now, not after the calibration
         check_writable(args.database)
     results = calibrate_database(args.database, options)
