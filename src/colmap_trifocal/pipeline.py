@@ -334,6 +334,13 @@ def _solve_camera(
         )
         solution = solve(tensors, method, camera.single_focal, options.tau)
         estimate = theta_to_intrinsics(solution.theta, start)
+    agree = int(solution.inlier_tensors.sum())
+    if not (np.all(np.isfinite(estimate)) and min(estimate[:2]) > 0 and agree > 0):
+        raise CalibrationError(
+            f"camera {camera.camera_id}: no valid estimate (fx {estimate[0]:.4g}, fy "
+            f"{estimate[1]:.4g}; {agree} of {len(tensors)} tensors agree): too little "
+            "parallax or wrong matches"
+        )
     scale = np.array([start[0], start[1], start[0], start[1]])
     std = np.sqrt(np.maximum(np.diag(solution.covariance), 0.0)) * scale
     return CameraCalibration(
