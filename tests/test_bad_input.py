@@ -284,6 +284,17 @@ def _identical_images(folder: Path, _good: Path) -> Path:
     return path
 
 
+def _jittered_copies(folder: Path, _good: Path) -> Path:
+    """Three copies of one image with 1.5 px of keypoint jitter: no parallax at all."""
+    rng = np.random.default_rng(5)
+    xy = rng.uniform([0, 0], [WIDTH, HEIGHT], size=(300, 2))
+    copies = [xy + rng.normal(0.0, 1.5, xy.shape) for _ in range(3)]
+    identity = np.column_stack([np.arange(300), np.arange(300)])
+    path = folder / "copies.db"
+    write_database(path, copies, {pair: identity for pair in all_pairs(3)})
+    return path
+
+
 def _fisheye(folder: Path, _good: Path) -> Path:
     path = folder / "fisheye.db"
     synthesize(path, "OPENCV_FISHEYE", [*PARAMS, 0.01, 0.0, 0.0, 0.0])
@@ -330,6 +341,7 @@ CASES: dict[str, Case] = {
     "single image": Case(_synthetic(1), "database has only 1 image, at least 3"),
     "two images": Case(_synthetic(2), "database has only 2 images, at least 3"),
     "identical images": Case(_identical_images, "3 are duplicates (the matched keypoints coincide"),
+    "identical images with jitter": Case(_jittered_copies, "no valid estimate (fx -29"),
     "fisheye camera": Case(_fisheye, "fisheye camera model OPENCV_FISHEYE is not supported"),
     "unknown camera id": Case(_copy, "camera id 7 is not in the database", ("--camera-id", "7")),
     "NaN prior": Case(_copy, "must be finite", ("--prior", "nan,1250,530,370")),
