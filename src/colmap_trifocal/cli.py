@@ -335,8 +335,10 @@ def main(argv: list[str] | None = None) -> int:
     in_main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, watch) if in_main_thread else None
     try:
-        args = build_parser().parse_args(argv)
+        args = build_parser().parse_args(argv)  # imports numpy, scipy, pycolmap, ...
         _configure_logging(args.verbose)
+        if watch.received:  # a Ctrl-C that an import swallowed (ImportError fallbacks)
+            raise KeyboardInterrupt
         return _dispatch(args)
     except KeyboardInterrupt as exc:
         return _interrupted(exc)
