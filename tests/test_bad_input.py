@@ -574,12 +574,14 @@ def test_sigint_at_any_time_during_write(good_database: Path, tmp_path: Path) ->
                 os.killpg(process.pid, signal.SIGINT)
             except ProcessLookupError:  # already finished
                 pass
-        _, stderr = process.communicate(timeout=120)
+        stdout, stderr = process.communicate(timeout=120)
         state = _write_state(path, original, new_params)
         states.append(state)
         assert "Traceback" not in stderr, (delay, stderr)
-        if process.returncode == 0:
-            assert stderr == "" and state == "written", (delay, stderr)
+        if stderr == "" and "wrote 1 camera(s)" in stdout:
+            # Finished; status 0, or -SIGINT when the signal came during the interpreter's
+            # shutdown, after it had put back the default handler (seen at ~duration).
+            assert process.returncode in (0, -signal.SIGINT) and state == "written", delay
             continue
         # Exit status 130, or killed by SIGINT (a shell shows 130 as well). CPython ends
         # that way, after main() returned 130, when the KeyboardInterrupt was raised
