@@ -12,17 +12,45 @@ K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]; tensor slices follow Hartley &
 Zisserman (``T_i = a_i b4ᵀ − a4 b_iᵀ`` for ``P2 = [A|a4]``, ``P3 = [B|b4]``).
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
 __version__ = "0.1.0"
 
 from .errors import CalibrationError
-from .pipeline import (
-    METHODS,
-    CalibrationOptions,
-    CameraCalibration,
-    calibrate_contents,
-    calibrate_contents_methods,
-    calibrate_database,
+
+if TYPE_CHECKING:
+    from .pipeline import (
+        METHODS,
+        CalibrationOptions,
+        CameraCalibration,
+        calibrate_contents,
+        calibrate_contents_methods,
+        calibrate_database,
+    )
+
+#: Loaded on first use (PEP 562), so that ``import colmap_trifocal.cli`` is quick and the
+#: command line can turn Ctrl-C during the heavy imports into one ``error:`` line.
+_PIPELINE_EXPORTS = frozenset(
+    {
+        "METHODS",
+        "CalibrationOptions",
+        "CameraCalibration",
+        "calibrate_contents",
+        "calibrate_contents_methods",
+        "calibrate_database",
+    }
 )
+
+
+def __getattr__(name: str) -> Any:
+    if name in _PIPELINE_EXPORTS:
+        from . import pipeline
+
+        return getattr(pipeline, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "METHODS",

@@ -2,32 +2,25 @@
 
 Exit status 0 on success. Input problems print one line ``error: ...`` on
 stderr and exit with status 2 (130 when interrupted); no traceback.
+
+The heavy modules (numpy, scipy, pycolmap, the pipeline) are imported inside
+:func:`main`, under its error handling, so that Ctrl-C during the first second
+(while they load) also ends with one ``error: interrupted`` line.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import logging
+import os
+import signal
 import sys
+import tempfile
+import threading
 from pathlib import Path
 
-import pycolmap
-
 from . import __version__
-from .demo import format_demo, run_demo
 from .errors import CalibrationError
-from .evaluation.commands import (
-    add_evaluate_parser,
-    add_synthetic_parser,
-    run_evaluate,
-    run_synthetic,
-)
-from .features import MATCHERS
-from .log import logger
-from .pipeline import METHODS, CalibrationOptions, calibrate_database, parse_prior
-from .reconstruction import REFINE_CHOICES
-from .workflow import RunOptions, format_report, run_pipeline
 
 EXIT_INPUT_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -42,6 +35,13 @@ class _OneLineParser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``colmap-trifocal`` argument parser (imports the pipeline for its defaults)."""
+    from .evaluation.commands import add_evaluate_parser, add_synthetic_parser
+    from .features import MATCHERS
+    from .pipeline import METHODS, CalibrationOptions
+    from .reconstruction import REFINE_CHOICES
+    from .workflow import RunOptions
+
     parser = _OneLineParser(
         prog="colmap-trifocal",
         description="Self-calibrate COLMAP cameras (fx, fy, cx, cy) with TrifocalCalib.",
@@ -139,6 +139,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _configure_logging(verbosity: int) -> None:
     """Package log level from -v/-vv; COLMAP's own (glog) messages only with -vv."""
+    import logging
+
+    import pycolmap
+
+    from .log import logger
+
     pycolmap.logging.minloglevel = 0 if verbosity > 1 else 2  # 2: errors only
     if verbosity <= 0:
         return
@@ -148,7 +154,53 @@ def _configure_logging(verbosity: int) -> None:
     logger.setLevel(logging.DEBUG if verbosity > 1 else logging.INFO)
 
 
+def _write_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` without ever leaving a truncated file behind.
+
+    A regular (or new) file is written to a temporary file in the same folder, flushed
+    to disk and renamed over ``path``; on any error the temporary file is removed and
+    ``path`` is as before. Anything else (``/dev/stdout``, a pipe) is written directly.
+
+    Raises:
+        OSError: the file could not be written (no space, no permission, ...).
+    """
+    path = Path(os.path.realpath(path))  # through a symlink, not over it
+    if path.exists() and not path.is_file():
+        with path.open("w") as stream:
+            stream.write(text)
+        return
+    fd, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)
+        with os.fdopen(fd, "w") as stream:
+            stream.write(text)
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
+
+
+def _check_output(path: Path, option: str) -> None:
+    """Refuse an output that :func:`_write_text` cannot write, before any work is done."""
+    if path.exists() and not path.is_file():  # a device or a pipe, written directly
+        if path.is_dir() or not os.access(path, os.W_OK):
+            raise CalibrationError(f"cannot write {option}: {path} is not a writable file")
+        return
+    folder = Path(os.path.realpath(path)).parent
+    if not folder.is_dir():
+        raise CalibrationError(f"cannot write {option}: folder {folder} does not exist")
+    if not os.access(folder, os.W_OK):  # the new file is made next to it, then renamed
+        raise CalibrationError(f"cannot write {option}: folder {folder} is not writable")
+
+
 def _run_calibrate(args: argparse.Namespace) -> int:
+    from .database import check_writable
+    from .pipeline import CalibrationOptions, calibrate_database, parse_prior
+
     options = CalibrationOptions(
         method=args.method,
         prior=parse_prior(args.prior) if args.prior is not None else None,
@@ -162,8 +214,10 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     )
     if args.max_triplets < 1:
         raise CalibrationError("--max-triplets must be at least 1")
-    if args.json is not None and not args.json.parent.is_dir():
-        raise CalibrationError(f"cannot write --json: folder {args.json.parent} does not exist")
+    if args.json is not None:
+        _check_output(args.json, "--json")
+    if args.write:  # refuse a read-only database now, not after the calibration
+        check_writable(args.database)
     results = calibrate_database(args.database, options)
     print(
         f"{'camera':>6} {'model':<14} {'method':<11} {'fx':>10} {'fy':>10} {'cx':>10} "
@@ -180,15 +234,22 @@ def _run_calibrate(args: argparse.Namespace) -> int:
             print(f"warning: {warning}", file=sys.stderr)
     if args.json is not None:
         try:
-            args.json.write_text(json.dumps([r.to_json() for r in results], indent=2) + "\n")
+            _write_text(args.json, json.dumps([r.to_json() for r in results], indent=2) + "\n")
         except OSError as exc:
             raise CalibrationError(f"cannot write {args.json}: {exc.strerror or exc}") from None
     if args.write:
-        print(f"wrote {len(results)} camera(s) to {args.database}")
+        written = [r for r in results if r.determined_anything]
+        if written:
+            print(f"wrote {len(written)} camera(s) to {args.database}")
+        for r in results:
+            if not r.determined_anything:
+                print(f"camera {r.camera_id} not written: the images determine none of its values")
     return 0
 
 
 def _run_pipeline(args: argparse.Namespace) -> int:
+    from .workflow import RunOptions, format_report, run_pipeline
+
     if args.max_image_size < 100:
         raise CalibrationError("--max-image-size must be at least 100 pixels")
     options = RunOptions(
@@ -213,37 +274,96 @@ def _run_pipeline(args: argparse.Namespace) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``colmap-trifocal`` console script."""
-    args = build_parser().parse_args(argv)
-    _configure_logging(args.verbose)
-    try:
-        if args.command == "calibrate":
-            return _run_calibrate(args)
-        if args.command == "run":
-            return _run_pipeline(args)
-        if args.command == "show":
-            from .visualize import show  # open3d is imported only for this command
+def _dispatch(args: argparse.Namespace) -> int:
+    """Run the chosen command; its exit status."""
+    if args.command == "calibrate":
+        return _run_calibrate(args)
+    if args.command == "run":
+        return _run_pipeline(args)
+    if args.command == "show":
+        from .visualize import show  # open3d is imported only for this command
 
-            written = show(args.model, args.png)
-            if written is not None:
-                print(f"wrote {written}")
-            return 0
-        if args.command == "evaluate":
-            return run_evaluate(args, sys.stderr.isatty())
-        if args.command == "synthetic":
-            return run_synthetic(args, sys.stderr.isatty())
-        if args.command == "demo":
-            result = run_demo(seed=args.seed, workdir=args.keep, method=args.method)
-            print(format_demo(result))
-            return 0
+        written = show(args.model, args.png)
+        if written is not None:
+            print(f"wrote {written}")
+        return 0
+    if args.command == "evaluate":
+        from .evaluation.commands import run_evaluate
+
+        return run_evaluate(args, sys.stderr.isatty())
+    if args.command == "synthetic":
+        from .evaluation.commands import run_synthetic
+
+        return run_synthetic(args, sys.stderr.isatty())
+    if args.command == "demo":
+        from .demo import format_demo, run_demo
+
+        result = run_demo(seed=args.seed, workdir=args.keep, method=args.method)
+        print(format_demo(result))
+        return 0
+    return EXIT_INPUT_ERROR
+
+
+class _InterruptWatch:
+    """SIGINT handler that raises KeyboardInterrupt like Python's own and remembers it.
+
+    Some libraries turn the KeyboardInterrupt into another exception, e.g. pycolmap's C++
+    module, interrupted while it loads, fails with an ``ImportError``/``RuntimeError``;
+    :func:`main` still reports such a run as interrupted.
+    """
+
+    def __init__(self) -> None:
+        self.received = False
+
+    def __call__(self, signum: int, frame: object) -> None:
+        self.received = True
+        raise KeyboardInterrupt
+
+
+def _interrupted(exc: BaseException) -> int:
+    """Print the one line for an interrupted run; the exit status 130."""
+    detail = f" ({exc})" if isinstance(exc, KeyboardInterrupt) and str(exc) else ""
+    print(f"error: interrupted{detail}", file=sys.stderr)
+    return EXIT_INTERRUPTED
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``colmap-trifocal`` console script.
+
+    Problems with the input or the environment end in one ``error: ...`` line on stderr:
+    :class:`CalibrationError` and ``OSError`` (a full disk, a missing permission: the
+    system's message and the file) with status 2, Ctrl-C with status 130 (whatever
+    exception it turned into). Any other exception is a bug and keeps its traceback.
+    """
+    watch = _InterruptWatch()
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, watch) if in_main_thread else None
+    try:
+        args = build_parser().parse_args(argv)  # imports numpy, scipy, pycolmap, ...
+        _configure_logging(args.verbose)
+        if watch.received:  # a Ctrl-C that an import swallowed (ImportError fallbacks)
+            raise KeyboardInterrupt
+        return _dispatch(args)
+    except KeyboardInterrupt as exc:
+        return _interrupted(exc)
     except CalibrationError as exc:
+        if watch.received:
+            return _interrupted(exc)
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_INPUT_ERROR
-    except KeyboardInterrupt:
-        print("error: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    return EXIT_INPUT_ERROR
+    except OSError as exc:
+        if watch.received:
+            return _interrupted(exc)
+        where = f": {exc.filename}" if exc.filename is not None else ""
+        print(f"error: {exc.strerror or exc}{where}", file=sys.stderr)
+        return EXIT_INPUT_ERROR
+    except Exception as exc:
+        if watch.received:
+            return _interrupted(exc)
+        raise
+    finally:
+        if in_main_thread:
+            signal.signal(signal.SIGINT, previous)
 
 
 if __name__ == "__main__":

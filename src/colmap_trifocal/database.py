@@ -27,6 +27,7 @@ import shutil
 import sqlite3
 import stat
 import tempfile
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,11 +35,15 @@ import numpy as np
 import pycolmap
 
 from .cameras import CameraInfo
-from .errors import CalibrationError
+from .errors import CalibrationError, interrupts_deferred
 from .log import logger
 
 REQUIRED_TABLES = ("cameras", "images", "keypoints", "two_view_geometries")
 MIN_IMAGES = 3
+#: A verified pair whose matched keypoints moved less than this (median, pixels) is the
+#: same picture twice (or a camera that did not move): no baseline, nothing to calibrate
+#: from, and its triplets give tensors that fit anything. It is left out.
+DUPLICATE_DISPLACEMENT_PX = 1.0
 
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 _HEADER_SIZE = 100
@@ -109,6 +114,10 @@ def _sqlite_error(exc: sqlite3.Error, path: Path, action: str = "read") -> Calib
     text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
     if "locked" in text or "busy" in text:
         return CalibrationError(f"database is locked by another process: {path}")
+    if "disk is full" in text:
+        return CalibrationError(f"cannot {action} database: no space left on the device: {path}")
+    if "I/O error" in text:
+        return CalibrationError(f"cannot {action} database: disk I/O error: {path}")
     return CalibrationError(f"cannot {action} database (truncated or corrupt?): {path} ({text})")
 
 
@@ -142,7 +151,16 @@ def _backup_readonly(path: Path, dst: Path, immutable: bool) -> None:
         src = sqlite3.connect(uri, uri=True, timeout=_LOCK_TIMEOUT_S)
         try:
             _check_tables(src, path)
-            _backup_into(src, dst)
+            try:
+                _backup_into(src, dst)
+            except sqlite3.Error as exc:
+                text = str(exc)
+                if "disk is full" in text or "I/O error" in text:  # most likely the copy
+                    raise CalibrationError(
+                        f"cannot copy the database to the temporary folder {dst.parent.parent} "
+                        f"({text}; is it full? set TMPDIR to another folder): {path}"
+                    ) from exc
+                raise
         finally:
             src.close()
     except sqlite3.Error as exc:
@@ -205,21 +223,33 @@ def _pair_fundamental(
     return np.linalg.inv(camera2.K).T @ essential @ np.linalg.inv(camera1.K)
 
 
+def _is_duplicate_pair(xy1: np.ndarray, xy2: np.ndarray) -> bool:
+    """Whether matched keypoints (m, 2) of two images coincide: the same picture twice."""
+    displacement = np.linalg.norm(xy1 - xy2, axis=1)
+    return bool(np.median(displacement) < DUPLICATE_DISPLACEMENT_PX)
+
+
 def _verified_pairs(
     pair_ids: list[int],
     geometries: list[pycolmap.TwoViewGeometry],
     contents: DatabaseContents,
     path: Path,
-) -> None:
-    """Fill ``contents.matches`` and ``contents.fundamentals`` from the two-view geometries."""
-    num_excluded = 0
+) -> Counter[str]:
+    """Fill ``contents.matches`` and ``contents.fundamentals`` from the two-view geometries.
+
+    Returns:
+        How many pairs with inlier matches were left out, by reason: ``"degenerate"``
+        (DEGENERATE or WATERMARK configuration) and ``"duplicate"`` (the matched
+        keypoints coincide, see ``DUPLICATE_DISPLACEMENT_PX``).
+    """
+    skipped: Counter[str] = Counter()
     for pair_id, tvg in zip(pair_ids, geometries, strict=True):
         id1, id2 = (int(i) for i in pycolmap.pair_id_to_image_pair(pair_id))
         inliers = np.asarray(tvg.inlier_matches, dtype=np.int64).reshape(-1, 2)
         if inliers.shape[0] < 1:
             continue
         if int(tvg.config) in _EXCLUDED_CONFIGS:
-            num_excluded += 1
+            skipped["degenerate"] += 1
             continue
         if id1 not in contents.keypoints or id2 not in contents.keypoints:
             logger.warning("skipping matches of unknown image pair (%d, %d)", id1, id2)
@@ -237,15 +267,27 @@ def _verified_pairs(
             raise CalibrationError(
                 f"corrupt database: match indices out of range for images {id1} and {id2}: {path}"
             )
+        xy1 = contents.keypoints[id1][inliers[:, 0]]
+        xy2 = contents.keypoints[id2][inliers[:, 1]]
+        if _is_duplicate_pair(xy1, xy2):
+            skipped["duplicate"] += 1
+            logger.info("images %d and %d look identical (no baseline); pair ignored", id1, id2)
+            continue
         contents.matches[(id1, id2)] = np.ascontiguousarray(inliers)
         if fundamental is not None:
             contents.fundamentals[(id1, id2)] = fundamental
-    if num_excluded:
-        logger.info("ignored %d degenerate or watermark image pairs", num_excluded)
+    if skipped["degenerate"]:
+        logger.info("ignored %d degenerate or watermark image pairs", skipped["degenerate"])
+    return skipped
 
 
-def _read_snapshot(snapshot: Path, path: Path) -> DatabaseContents:
-    """Read the snapshot with pycolmap (``path`` is only used in messages)."""
+def _read_snapshot(snapshot: Path, path: Path) -> tuple[DatabaseContents, Counter[str], int]:
+    """Read the snapshot with pycolmap (``path`` is only used in messages).
+
+    Returns:
+        The contents, the pairs left out by reason (see :func:`_verified_pairs`) and the
+        number of image pairs with raw (not necessarily verified) matches.
+    """
     contents = DatabaseContents()
     try:
         with pycolmap.Database.open(str(snapshot)) as db:
@@ -257,6 +299,7 @@ def _read_snapshot(snapshot: Path, path: Path) -> DatabaseContents:
                 contents.image_camera[image_id] = int(image.camera_id)
                 contents.keypoints[image_id] = _keypoints_xy(db.read_keypoints(image_id))
             pair_ids, geometries = db.read_two_view_geometries()
+            num_matched_pairs = int(db.num_matched_image_pairs())
     except CalibrationError:
         raise
     except (RuntimeError, ValueError) as exc:
@@ -267,38 +310,66 @@ def _read_snapshot(snapshot: Path, path: Path) -> DatabaseContents:
         raise CalibrationError(
             f"corrupt database: images refer to missing camera {missing[0]}: {path}"
         )
-    _verified_pairs(pair_ids, geometries, contents, path)
-    return contents
+    skipped = _verified_pairs(pair_ids, geometries, contents, path)
+    return contents, skipped, num_matched_pairs
+
+
+def _no_matches_error(skipped: Counter[str], num_matched_pairs: int, path: Path) -> str:
+    """Why there is nothing to calibrate from, for a database with images but no usable pair."""
+    if skipped:
+        reasons = []
+        if skipped["degenerate"]:
+            reasons.append(f"{skipped['degenerate']} are DEGENERATE or WATERMARK")
+        if skipped["duplicate"]:
+            reasons.append(
+                f"{skipped['duplicate']} are duplicates (the matched keypoints coincide: "
+                "the same image twice, no baseline)"
+            )
+        total = sum(skipped.values())
+        return (
+            f"database has no usable verified matches: of {total} verified image pairs "
+            f"{' and '.join(reasons)}: {path}"
+        )
+    if num_matched_pairs:
+        return (
+            f"database has no verified matches ({num_matched_pairs} image pairs have raw "
+            f"matches; run COLMAP's geometric verification): {path}"
+        )
+    return f"database has no verified matches (run COLMAP feature matching first): {path}"
 
 
 def read_database(path: Path) -> DatabaseContents:
     """Read cameras, images, raw keypoints and verified matches from a COLMAP database.
 
     The file at ``path`` stays byte-identical and no companion files are left behind in
-    the usual case (see :func:`_snapshot`). Pairs flagged DEGENERATE or WATERMARK are
-    ignored.
+    the usual case (see :func:`_snapshot`). Pairs flagged DEGENERATE or WATERMARK, and
+    pairs of identical images (see ``DUPLICATE_DISPLACEMENT_PX``), are ignored.
 
     Raises:
         CalibrationError: the path is missing, a directory, not an SQLite/COLMAP database,
-            locked or corrupt; or it has fewer than 3 images or no verified matches.
+            locked or corrupt; or it has fewer than 3 images, no keypoints or no usable
+            verified matches.
     """
     path = Path(path)
     header = _check_sqlite_file(path)
     with tempfile.TemporaryDirectory(prefix="colmap_trifocal_") as tmp:
         snapshot = Path(tmp) / "snapshot.db"
         _snapshot(path, header, snapshot)
-        contents = _read_snapshot(snapshot, path)
+        contents, skipped, num_matched_pairs = _read_snapshot(snapshot, path)
     num_images = len(contents.image_names)
     if num_images == 0:
         raise CalibrationError(f"database has no images: {path}")
     if num_images < MIN_IMAGES:
+        noun = "image" if num_images == 1 else "images"
         raise CalibrationError(
-            f"database has only {num_images} images, at least {MIN_IMAGES} are needed: {path}"
+            f"database has only {num_images} {noun}, at least {MIN_IMAGES} are needed: {path}"
+        )
+    if not any(len(xy) for xy in contents.keypoints.values()):
+        raise CalibrationError(
+            f"database has no keypoints (run COLMAP feature extraction first): {path}"
         )
     if not contents.matches:
-        raise CalibrationError(
-            f"database has no verified matches (run COLMAP feature matching first): {path}"
-        )
+        raise CalibrationError(_no_matches_error(skipped, num_matched_pairs, path))
     logger.info(
         "read %s: %d cameras, %d images, %d verified pairs (%d with F)",
         path,
@@ -311,6 +382,17 @@ def read_database(path: Path) -> DatabaseContents:
 
 
 # --------------------------------------------------------------------------- writing
+
+
+def check_writable(path: Path) -> None:
+    """Raise :class:`CalibrationError` unless ``path`` is an SQLite file this process may change.
+
+    Cheap (no database access): the CLI calls it before a long calibration so that a
+    read-only database with ``--write`` is refused at once, not after minutes of work.
+    """
+    path = Path(path)
+    _check_sqlite_file(path)
+    _check_writable(path)
 
 
 def _check_writable(path: Path) -> None:
@@ -337,25 +419,53 @@ def _claim_backup_path(path: Path) -> Path:
         return candidate
 
 
-def _make_backup(path: Path, con: sqlite3.Connection) -> Path:
-    """Copy the database next to itself without overwriting anything; return the copy's path.
-
-    If the ``-wal`` file is empty the main file holds the whole database and is copied
-    byte for byte (``shutil.copy2`` semantics); otherwise the SQLite backup API is used so
-    that committed changes still in the WAL are included.
-    """
-    target = _claim_backup_path(path)
+def _sync(path: Path) -> None:
+    """Flush a file's data to the disk (the backup must be durable before the database changes)."""
+    fd = os.open(path, os.O_RDONLY)
     try:
-        wal = _sidecar(path, "-wal")
-        if wal.exists() and wal.stat().st_size > 0:
-            _backup_into(con, target)
-        else:
-            shutil.copyfile(path, target)
-            shutil.copystat(path, target)
-    except BaseException:
-        target.unlink(missing_ok=True)
-        raise
-    return target
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _copy_database(path: Path, target: Path) -> None:
+    """Copy the database at ``path`` into the existing file ``target``.
+
+    The caller holds the write lock (``BEGIN IMMEDIATE``), so nobody else can commit
+    meanwhile. If the ``-wal`` file is empty the main file holds the whole database and is
+    copied byte for byte (``shutil.copy2`` semantics); otherwise a second, read-only
+    connection copies it with the SQLite backup API, so that committed changes still in
+    the WAL are included (the backup API cannot read through the locking connection).
+    """
+    wal = _sidecar(path, "-wal")
+    if wal.exists() and wal.stat().st_size > 0:
+        source = sqlite3.connect(
+            f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=_LOCK_TIMEOUT_S
+        )
+        try:
+            _backup_into(source, target)
+        finally:
+            source.close()
+    else:
+        shutil.copyfile(path, target)
+        shutil.copystat(path, target)
+    _sync(target)
+
+
+def _make_backup(path: Path, target: Path) -> None:
+    """Copy the database at ``path`` into the claimed backup file ``target``.
+
+    Raises:
+        CalibrationError: the copy could not be made (no space, no permission, ...); the
+            caller removes the partial copy.
+    """
+    try:
+        _copy_database(path, target)
+    except (OSError, sqlite3.Error) as exc:
+        reason = (exc.strerror if isinstance(exc, OSError) else None) or str(exc)
+        raise CalibrationError(
+            f"cannot back up the database, nothing written: {path} ({reason})"
+        ) from exc
 
 
 def _params_blob(camera: CameraInfo) -> bytes:
@@ -378,14 +488,38 @@ def _check_cameras_match(
             raise ValueError(f"cameras[{camera_id}] has camera_id {cam.camera_id}")
         if camera_id not in rows:
             raise CalibrationError(f"camera {camera_id} is not in the database: {path}")
-        if not np.all(np.isfinite(cam.params)):
-            raise CalibrationError(f"camera {camera_id}: refusing to write non-finite params")
         expected = (int(pycolmap.CameraModelId(cam.model)), cam.width, cam.height)
         if rows[camera_id] != expected:
             raise CalibrationError(
                 f"camera {camera_id} in the database differs in model or size from the "
                 f"calibrated one: {path}"
             )
+
+
+def _check_params(cameras: dict[int, CameraInfo]) -> None:
+    """Refuse to store params that no COLMAP camera can have (non-finite, focal length <= 0)."""
+    for camera_id, cam in cameras.items():
+        if not np.all(np.isfinite(cam.params)):
+            raise CalibrationError(f"camera {camera_id}: refusing to write non-finite params")
+        fx, fy, _, _ = cam.intrinsics
+        if fx <= 0 or fy <= 0:
+            raise CalibrationError(
+                f"camera {camera_id}: refusing to write a focal length <= 0 "
+                f"(fx = {fx:.6g}, fy = {fy:.6g})"
+            )
+
+
+def _update_params(con: sqlite3.Connection, cameras: dict[int, CameraInfo]) -> None:
+    """The UPDATE of ``cameras.params`` (inside the caller's transaction)."""
+    con.executemany(
+        "UPDATE cameras SET params = ? WHERE camera_id = ?",
+        [(_params_blob(cam), camera_id) for camera_id, cam in cameras.items()],
+    )
+
+
+def _commit(con: sqlite3.Connection) -> None:
+    """COMMIT the caller's transaction."""
+    con.execute("COMMIT")
 
 
 def _verify_written(con: sqlite3.Connection, cameras: dict[int, CameraInfo], path: Path) -> None:
@@ -401,8 +535,12 @@ def write_intrinsics(
 ) -> Path | None:
     """Write the cameras' params into the COLMAP database at ``path`` (in place).
 
-    Only the ``params`` column of the given cameras changes; all cameras are updated in one
-    ``BEGIN IMMEDIATE ... COMMIT`` transaction (rolled back on any error) and read back.
+    Only the ``params`` column of the given cameras changes. Order of events: take the
+    write lock (``BEGIN IMMEDIATE``: nobody else can commit from now on), check the
+    cameras, copy the database to the backup and flush it to disk, UPDATE, COMMIT, read
+    back. Until COMMIT any error or interrupt (Ctrl-C) rolls back and deletes the backup
+    just made, leaving the database byte-identical and no backup behind; an interrupt
+    that arrives during COMMIT is held until the commit is done and the backup kept.
 
     Args:
         path: COLMAP database.
@@ -415,7 +553,9 @@ def write_intrinsics(
 
     Raises:
         CalibrationError: missing/invalid/read-only/locked database, unknown camera, model
-            or size mismatch, concurrent modification, or failed verification.
+            or size mismatch, invalid params, no space for the backup, or failed
+            verification.
+        KeyboardInterrupt: interrupted (see above for the state left behind).
     """
     path = Path(path)
     _check_sqlite_file(path)
@@ -423,31 +563,38 @@ def write_intrinsics(
     if not cameras:
         logger.info("no cameras to write")
         return None
+    _check_params(cameras)
     uri = f"{path.resolve().as_uri()}?mode=rw"
     backup_path: Path | None = None
     try:
         con = sqlite3.connect(uri, uri=True, timeout=_LOCK_TIMEOUT_S, isolation_level=None)
         try:
             _check_tables(con, path)
-            _check_cameras_match(con, cameras, path)
-            version = con.execute("PRAGMA data_version").fetchone()[0]
-            if backup:
-                backup_path = _make_backup(path, con)
-                logger.info("backed up %s to %s", path, backup_path)
             con.execute("BEGIN IMMEDIATE")
+            committed = False
             try:
-                if con.execute("PRAGMA data_version").fetchone()[0] != version:
-                    raise CalibrationError(
-                        f"database was modified by another process, nothing written: {path}"
-                    )
-                con.executemany(
-                    "UPDATE cameras SET params = ? WHERE camera_id = ?",
-                    [(_params_blob(cam), camera_id) for camera_id, cam in cameras.items()],
-                )
-                con.execute("COMMIT")
-            except BaseException:
-                if con.in_transaction:
-                    con.execute("ROLLBACK")
+                _check_cameras_match(con, cameras, path)
+                if backup:
+                    with interrupts_deferred():  # a created backup file is always known
+                        backup_path = _claim_backup_path(path)
+                    _make_backup(path, backup_path)
+                    logger.info("backed up %s to %s", path, backup_path)
+                _update_params(con, cameras)
+                with interrupts_deferred():
+                    _commit(con)
+                    committed = True
+            except BaseException as exc:
+                if not committed:
+                    if con.in_transaction:
+                        con.execute("ROLLBACK")  # if this fails too, the backup stays
+                    if backup_path is not None:  # complete or partial: nothing was written
+                        backup_path.unlink(missing_ok=True)
+                    raise
+                if isinstance(exc, KeyboardInterrupt):  # held back during COMMIT
+                    kept = f"backup: {backup_path}" if backup_path else "no backup"
+                    raise KeyboardInterrupt(
+                        f"after the new intrinsics were written to {path}; {kept}"
+                    ) from None
                 raise
             _verify_written(con, cameras, path)
         finally:

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 from collections.abc import Callable, Sequence
 from typing import Any
 
 from tqdm import tqdm
+
+from .errors import interrupts_deferred
 
 MAX_WORKERS = 8
 
@@ -19,6 +22,12 @@ def default_workers() -> int:
     except AttributeError:  # not Linux
         cores = os.cpu_count() or 1
     return max(1, min(cores, MAX_WORKERS))
+
+
+def _quiet_worker() -> None:
+    """Ctrl-C is the parent's to handle; terminate() ends a worker without glog's stack dump."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def map_jobs(
@@ -44,8 +53,10 @@ def map_jobs(
         bar.close()
         return results
     method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
-    pool = multiprocessing.get_context(method).Pool(min(workers, len(jobs)))
+    pool = None
     try:
+        with interrupts_deferred():  # Ctrl-C inside fork() is lost in an at-fork hook
+            pool = multiprocessing.get_context(method).Pool(min(workers, len(jobs)), _quiet_worker)
         results = []
         for result in pool.imap(function, jobs, chunksize=1):
             results.append(result)
@@ -54,9 +65,11 @@ def map_jobs(
         # pycolmap's (glog) failure handler reports with a stack trace.
         pool.close()
     except BaseException:
-        pool.terminate()
+        if pool is not None:
+            pool.terminate()
         raise
     finally:
-        pool.join()
+        if pool is not None:
+            pool.join()
         bar.close()
     return results

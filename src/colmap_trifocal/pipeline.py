@@ -137,12 +137,16 @@ def calibrate_database(
     contents = read_database(path)
     results = calibrate_contents(contents, options)
     if options.write:
+        # A camera the images determined nothing of keeps its stored parameters:
+        # writing the prior back would record a guess as a calibration.
         updated = {
             r.camera_id: contents.cameras[r.camera_id].with_intrinsics(r.fx, r.fy, r.cx, r.cy)
             for r in results
+            if r.determined_anything
         }
-        backup = write_intrinsics(path, updated)
-        logger.info("wrote %d camera(s) to %s (backup: %s)", len(updated), path, backup)
+        if updated:
+            backup = write_intrinsics(path, updated)
+            logger.info("wrote %d camera(s) to %s (backup: %s)", len(updated), path, backup)
     return results
 
 
@@ -320,6 +324,13 @@ def _solve_camera(
         fallback = solve_from(start, tensors)
     estimate = theta_to_intrinsics(fallback.solution.theta, start)
     solution, model = fallback.solution, fallback.model
+    agree = int(solution.inlier_tensors.sum())
+    if not (np.all(np.isfinite(estimate)) and min(estimate[:2]) > 0 and agree > 0):
+        raise CalibrationError(
+            f"camera {camera.camera_id}: no valid estimate (fx {estimate[0]:.4g}, fy "
+            f"{estimate[1]:.4g}; {agree} of {len(tensors)} tensors agree): too little "
+            "parallax or wrong matches"
+        )
     if model != base:
         logger.info("camera %d: assumed %s", camera.camera_id, "; ".join(model.assumptions()))
     estimated = model.estimated(camera.single_focal)
@@ -346,6 +357,7 @@ def _solve_camera(
         prior=tuple(map(float, data.prior)),  # type: ignore[arg-type]
         start=tuple(map(float, start)),  # type: ignore[arg-type]
         assumptions=model.assumptions(),
+        estimated=estimated,
         unconstrained_std={
             name: finite_or_none(s) for name, s in zip(PARAMETER_NAMES, unconstrained, strict=True)
         },

@@ -73,6 +73,8 @@ class CameraCalibration:
     start: tuple[float, float, float, float]
     #: What was assumed instead of estimated, e.g. ``["fy = fx"]``; empty normally.
     assumptions: list[str] = field(default_factory=list)
+    #: Per parameter: estimated from the images (False: tied or held at the prior).
+    estimated: dict[str, bool] = field(default_factory=lambda: dict.fromkeys(PARAMETER_NAMES, True))
     unconstrained_std: dict[str, float | None] = field(default_factory=dict)
     triplets: list[TripletReport] = field(default_factory=list)
     tensors: list[TripletTensor] = field(default_factory=list, repr=False)
@@ -81,6 +83,11 @@ class CameraCalibration:
     def intrinsics(self) -> np.ndarray:
         """(fx, fy, cx, cy) in pixels."""
         return np.array([self.fx, self.fy, self.cx, self.cy])
+
+    @property
+    def determined_anything(self) -> bool:
+        """Whether the images determined at least one parameter (else: the prior)."""
+        return any(self.estimated.values())
 
     @property
     def undetermined(self) -> list[str]:

@@ -227,9 +227,12 @@ def calibrated_hypothesis(x: np.ndarray, threshold: float) -> tuple[np.ndarray, 
         return None
     X = cv2.triangulatePoints(np.eye(3, 4), P2, x1[good].T, x2[good].T)
     X = (X[:3] / X[3]).T
-    ok, rvec, tvec, _ = cv2.solvePnPRansac(
-        X, x3[good], identity, None, reprojectionError=threshold, flags=cv2.SOLVEPNP_SQPNP
-    )
+    try:  # SQPnP asserts on degenerate points, e.g. all on one line
+        ok, rvec, tvec, _ = cv2.solvePnPRansac(
+            X, x3[good], identity, None, reprojectionError=threshold, flags=cv2.SOLVEPNP_SQPNP
+        )
+    except cv2.error:
+        return None
     if not ok:
         return None
     P3 = np.hstack([cv2.Rodrigues(rvec)[0], tvec.reshape(3, 1)])
