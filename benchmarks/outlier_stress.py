@@ -60,6 +60,7 @@ from scipy.spatial.transform import Rotation
 from colmap_trifocal import CalibrationError, CalibrationOptions, calibrate_contents_methods
 from colmap_trifocal.database import read_database
 from colmap_trifocal.demo import DEMO_INTRINSICS, DEMO_SIZE
+from colmap_trifocal.synthetic_database import wrong_partners
 from colmap_trifocal.trifocal import intrinsics_matrix
 
 METHODS = ("msac-opt", "fundamental")
@@ -138,10 +139,7 @@ def make_outlier_database(
             id1, id2 = (int(i) for i in pycolmap.pair_id_to_image_pair(pair_id))
             matches = np.array(geometry.inlier_matches, dtype=np.int64).reshape(-1, 2)
             if model == "matches" and ratio > 0:
-                wrong = rng.random(len(matches)) < ratio
-                # A random partner other than the true one.
-                offsets = rng.integers(1, sizes[id2], size=int(wrong.sum()))
-                matches[wrong, 1] = (matches[wrong, 1] + offsets) % sizes[id2]
+                matches = wrong_partners(matches, ratio, sizes[id2], rng)
             geometry.inlier_matches = matches.astype(np.uint32)
             geometry.F = np.zeros((3, 3))  # the true F no longer fits the turned cameras
             db.update_two_view_geometry(id1, id2, geometry)

@@ -17,6 +17,7 @@ import numpy as np
 import pycolmap
 
 from .pipeline import PARAMETER_NAMES
+from .synthetic_database import corrupt_verified_matches
 from .workflow import RunOptions, run_pipeline
 
 #: The demo camera (PINHOLE, 1600x1200): fx, fy, cx, cy in pixels.
@@ -51,7 +52,8 @@ def make_demo_database(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Write the demo database; returns (true intrinsics, stored wrong intrinsics).
 
-    The stored camera has every parameter off by ``±prior_error`` (random sign).
+    The stored camera has every parameter off by ``±prior_error`` (random sign);
+    a share ``1 − inlier_ratio`` of every pair's verified matches is wrong.
     """
     pycolmap.set_random_seed(seed)
     options = pycolmap.SyntheticDatasetOptions(
@@ -63,7 +65,6 @@ def make_demo_database(
         camera_params=list(DEMO_INTRINSICS),
         camera_width=DEMO_SIZE[0],
         camera_height=DEMO_SIZE[1],
-        inlier_match_ratio=inlier_ratio,
     )
     truth = np.array(DEMO_INTRINSICS)
     rng = np.random.default_rng(seed)
@@ -72,6 +73,7 @@ def make_demo_database(
         reconstruction = pycolmap.synthesize_dataset(options, db)
         noise = pycolmap.SyntheticNoiseOptions(point2D_stddev=noise_px)
         pycolmap.synthesize_noise(noise, reconstruction, db)
+        corrupt_verified_matches(db, 1.0 - inlier_ratio, rng)
         camera = db.read_all_cameras()[0]
         camera.params = prior
         db.update_camera(camera)

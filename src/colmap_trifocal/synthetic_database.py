@@ -97,3 +97,40 @@ def write_database(
             geometry.inlier_matches = pairs
             db.write_two_view_geometry(id1, id2, geometry)
     return path
+
+
+def wrong_partners(
+    matches: np.ndarray, ratio: float, num_keypoints: int, rng: np.random.Generator
+) -> np.ndarray:
+    """A copy of matches (m, 2) with a share ``ratio`` given a random wrong partner.
+
+    Each chosen match keeps its keypoint in the first image and gets another
+    keypoint (never the true one) of the second image, which has
+    ``num_keypoints``: a wrong match that geometric verification let through.
+    """
+    result = np.array(matches, dtype=np.int64).reshape(-1, 2)
+    wrong = rng.random(len(result)) < ratio
+    offsets = rng.integers(1, max(num_keypoints, 2), size=int(wrong.sum()))
+    result[wrong, 1] = (result[wrong, 1] + offsets) % num_keypoints
+    return result
+
+
+def corrupt_verified_matches(db: pycolmap.Database, ratio: float, rng: np.random.Generator) -> None:
+    """Give a share ``ratio`` of every pair's verified matches a wrong partner (in place).
+
+    pycolmap's ``SyntheticDatasetOptions.inlier_match_ratio`` only adds wrong matches
+    to the raw ``matches`` table; the verified two-view geometries, which the
+    calibration reads, stay clean. This puts them where they matter. The raw matches
+    are set to the verified ones.
+    """
+    if ratio <= 0.0:
+        return
+    pair_ids, geometries = db.read_two_view_geometries()
+    for pair_id, geometry in zip(pair_ids, geometries, strict=True):
+        id1, id2 = (int(i) for i in pycolmap.pair_id_to_image_pair(pair_id))
+        size = db.num_keypoints_for_image(id2)
+        matches = wrong_partners(geometry.inlier_matches, ratio, size, rng).astype(np.uint32)
+        geometry.inlier_matches = matches
+        db.update_two_view_geometry(id1, id2, geometry)
+        db.delete_matches(id1, id2)
+        db.write_matches(id1, id2, matches)
