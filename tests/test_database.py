@@ -98,7 +98,7 @@ def pinhole_db(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_contents(synthetic: tuple[Path, pycolmap.Reconstruction]) -> None:
     path, truth = synthetic
-    contents = read_database(path)
+    contents = read_database(path, fundamentals=True)
 
     assert len(contents.image_names) == 5
     assert set(contents.image_names) == set(contents.image_camera) == set(contents.keypoints)
@@ -121,7 +121,7 @@ def test_contents(synthetic: tuple[Path, pycolmap.Reconstruction]) -> None:
     assert set(contents.fundamentals) == set(contents.matches)
     for (id1, id2), matches in contents.matches.items():
         assert id1 < id2
-        assert matches.dtype == np.int64 and matches.shape == (300, 2)
+        assert matches.dtype == np.int32 and matches.shape == (300, 2)
         assert matches.min() >= 0
         assert matches[:, 0].max() < len(contents.keypoints[id1])
         assert matches[:, 1].max() < len(contents.keypoints[id2])
@@ -137,7 +137,7 @@ def test_contents(synthetic: tuple[Path, pycolmap.Reconstruction]) -> None:
 @pytest.mark.parametrize("fixture", ["synthetic_db", "pinhole_db"])
 def test_fundamental_convention(fixture: str, request: pytest.FixtureRequest) -> None:
     """x2^T F x1 = 0 with x1 in image id1 (matches[:, 0]) and x2 in image id2."""
-    contents = read_database(request.getfixturevalue(fixture))
+    contents = read_database(request.getfixturevalue(fixture), fundamentals=True)
     assert contents.fundamentals
     for (id1, id2), fundamental in contents.fundamentals.items():
         matches = contents.matches[(id1, id2)]
@@ -194,13 +194,13 @@ def test_read_sees_committed_changes_in_wal(synthetic_db: Path, tmp_path: Path) 
 def test_pair_stored_in_the_other_order(synthetic_db: Path, tmp_path: Path) -> None:
     """A geometry written for (2, 1) is read back for (1, 2) with the same convention."""
     path = _copy(synthetic_db, tmp_path)
-    original = read_database(path)
+    original = read_database(path, fundamentals=True)
     with pycolmap.Database.open(str(path)) as db:
         geometry = db.read_two_view_geometry(1, 2)
         db.delete_two_view_geometry(1, 2)
         geometry.invert()  # now maps image 2 to image 1
         db.write_two_view_geometry(2, 1, geometry)
-    contents = read_database(path)
+    contents = read_database(path, fundamentals=True)
     np.testing.assert_array_equal(contents.matches[(1, 2)], original.matches[(1, 2)])
     f_new = contents.fundamentals[(1, 2)]
     f_old = original.fundamentals[(1, 2)]
@@ -232,7 +232,7 @@ def test_fundamental_from_essential(pinhole_db: Path, tmp_path: Path) -> None:
             geometry.config = Config.CALIBRATED
             db.update_two_view_geometry(*pycolmap.pair_id_to_image_pair(pair_id), geometry)
 
-    contents = read_database(path)
+    contents = read_database(path, fundamentals=True)
     assert set(contents.fundamentals) == set(contents.matches)
     cameras_seen = set()
     for (id1, id2), fundamental in contents.fundamentals.items():
@@ -256,7 +256,7 @@ def test_pairs_without_usable_f_and_watermarks(synthetic_db: Path, tmp_path: Pat
         watermark.config = Config.WATERMARK
         db.update_two_view_geometry(1, 3, watermark)
         db.delete_two_view_geometry(2, 3)
-    contents = read_database(path)
+    contents = read_database(path, fundamentals=True)
     assert (1, 2) in contents.matches and (1, 2) not in contents.fundamentals
     assert (1, 3) not in contents.matches
     assert (2, 3) not in contents.matches

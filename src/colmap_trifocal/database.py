@@ -39,11 +39,15 @@ from .errors import CalibrationError, interrupts_deferred
 from .log import logger
 
 REQUIRED_TABLES = ("cameras", "images", "keypoints", "two_view_geometries")
+#: Tables whose rows the snapshot leaves out: the calibration never reads them.
+SKIPPED_TABLES = frozenset({"descriptors", "matches"})
 MIN_IMAGES = 3
 #: A verified pair whose matched keypoints moved less than this (median, pixels) is the
 #: same picture twice (or a camera that did not move): no baseline, nothing to calibrate
 #: from, and its triplets give tensors that fit anything. It is left out.
 DUPLICATE_DISPLACEMENT_PX = 1.0
+#: The duplicate test uses this many matches of a pair, evenly spaced (its median).
+DUPLICATE_SAMPLE = 32
 
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 _HEADER_SIZE = 100
@@ -66,9 +70,10 @@ class DatabaseContents:
         image_names: image_id -> image name.
         image_camera: image_id -> camera_id.
         keypoints: image_id -> (n, 2) float64 raw pixel coordinates ``(x, y)``.
-        matches: (id1, id2), id1 < id2 -> (m, 2) int64 keypoint indices of the verified
+        matches: (id1, id2), id1 < id2 -> (m, 2) int32 keypoint indices of the verified
             inlier matches (m >= 1).
-        fundamentals: (id1, id2) -> 3x3 float64 F with ``x2^T F x1 = 0`` (pixels), for the
+        fundamentals: only with ``read_database(..., fundamentals=True)``: (id1, id2) ->
+            3x3 float64 F with ``x2^T F x1 = 0`` (pixels), for the
             matched pairs that have a usable F.
     """
 
@@ -104,6 +109,11 @@ def _check_sqlite_file(path: Path) -> bytes:
 def _check_tables(con: sqlite3.Connection, path: Path) -> None:
     """Raise unless the connected database has COLMAP's tables."""
     names = {row[0] for row in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    _check_table_names(names, path)
+
+
+def _check_table_names(names: set[str], path: Path) -> None:
+    """Raise unless ``names`` include COLMAP's tables."""
     missing = [table for table in REQUIRED_TABLES if table not in names]
     if missing:
         raise CalibrationError(f"not a COLMAP database (no table {', '.join(missing)}): {path}")
@@ -138,21 +148,50 @@ def _backup_into(source: sqlite3.Connection, target: Path) -> None:
         out.close()
 
 
-def _backup_readonly(path: Path, dst: Path, immutable: bool) -> None:
-    """Check ``path`` for COLMAP tables and copy it to ``dst`` with the SQLite backup API.
+def _copy_for_reading(path: Path, dst: Path, immutable: bool) -> int:
+    """Check ``path`` for COLMAP tables and copy what the calibration reads into ``dst``.
 
-    ``immutable=True`` opens without locks and without creating ``-wal``/``-shm`` files; it
-    is only used for a WAL database that has no ``-wal`` file (the main file then holds the
-    whole database) and the caller checks the file did not change meanwhile.
+    Every table and index is created with the source's own schema; all rows are
+    copied except those of ``SKIPPED_TABLES`` (descriptors and raw matches, which the
+    calibration never reads and which are most of a real database: 19 of 24 MB on
+    fountain-P11). The copy is one read transaction, so it is consistent.
+    ``immutable=True`` opens without locks and without creating ``-wal``/``-shm`` files;
+    it is only used for a WAL database that has no ``-wal`` file (the main file then
+    holds the whole database) and the caller checks the file did not change meanwhile.
+
+    Returns:
+        The number of image pairs with raw matches (for the error message when none is
+        verified).
     """
     query = "mode=ro&immutable=1" if immutable else "mode=ro"
-    uri = f"{path.resolve().as_uri()}?{query}"
+    source = f"{path.resolve().as_uri()}?{query}"
     try:
-        src = sqlite3.connect(uri, uri=True, timeout=_LOCK_TIMEOUT_S)
+        out = sqlite3.connect(
+            dst.resolve().as_uri(), uri=True, timeout=_LOCK_TIMEOUT_S, isolation_level=None
+        )
         try:
-            _check_tables(src, path)
+            # A throw-away temporary file: no journal, no fsync.
+            out.execute("PRAGMA main.journal_mode = OFF")
+            out.execute("PRAGMA main.synchronous = OFF")
+            out.execute("ATTACH DATABASE ? AS source", (source,))
+            names = {row[0] for row in out.execute("SELECT name FROM source.sqlite_master")}
+            _check_table_names(names, path)
+            out.execute("BEGIN")
+            schema = out.execute(
+                "SELECT type, name, sql FROM source.sqlite_master WHERE sql IS NOT NULL "
+                "AND name NOT LIKE 'sqlite_%' AND type IN ('table', 'index') "
+                "ORDER BY type = 'index'"
+            ).fetchall()
+            matched = 0
+            if "matches" in names:
+                query_matched = "SELECT COUNT(*) FROM source.matches WHERE rows > 0"
+                matched = int(out.execute(query_matched).fetchone()[0])
             try:
-                _backup_into(src, dst)
+                for kind, name, sql in schema:
+                    out.execute(sql)
+                    if kind == "table" and name not in SKIPPED_TABLES:
+                        out.execute(f'INSERT INTO main."{name}" SELECT * FROM source."{name}"')
+                out.execute("COMMIT")
             except sqlite3.Error as exc:
                 text = str(exc)
                 if "disk is full" in text or "I/O error" in text:  # most likely the copy
@@ -161,8 +200,10 @@ def _backup_readonly(path: Path, dst: Path, immutable: bool) -> None:
                         f"({text}; is it full? set TMPDIR to another folder): {path}"
                     ) from exc
                 raise
+            out.execute("DETACH DATABASE source")
+            return matched
         finally:
-            src.close()
+            out.close()
     except sqlite3.Error as exc:
         raise _sqlite_error(exc, path) from exc
 
@@ -172,24 +213,27 @@ def _stat_key(path: Path) -> tuple[int, int, int]:
     return st.st_ino, st.st_size, st.st_mtime_ns
 
 
-def _snapshot(path: Path, header: bytes, dst: Path) -> None:
-    """Write a consistent copy of the database at ``path`` to ``dst``; ``path`` is untouched.
+def _snapshot(path: Path, header: bytes, dst: Path) -> int:
+    """Write a consistent copy of what the calibration reads from ``path`` to ``dst``.
 
-    A read-only SQLite connection to a WAL database leaves ``-wal``/``-shm`` files behind,
-    so when the main file is self-contained (WAL mode, no ``-wal`` file) it is read as
-    immutable and the copy is kept only if the file did not change while copying. Otherwise
-    (rollback journal, or another process has the database open) a normal read-only,
-    locking connection is used.
+    ``path`` is untouched. A read-only SQLite connection to a WAL database leaves
+    ``-wal``/``-shm`` files behind, so when the main file is self-contained (WAL mode, no
+    ``-wal`` file) it is read as immutable and the copy is kept only if the file did not
+    change while copying. Otherwise (rollback journal, or another process has the
+    database open) a normal read-only, locking connection is used.
+
+    Returns:
+        The number of image pairs with raw matches (see :func:`_copy_for_reading`).
     """
     wal_mode = header[18] == 2 and header[19] == 2
     if wal_mode and not _sidecar(path, "-wal").exists():
         before = _stat_key(path)
-        _backup_readonly(path, dst, immutable=True)
+        matched = _copy_for_reading(path, dst, immutable=True)
         if _stat_key(path) == before:
-            return
+            return matched
         logger.debug("database changed while copying; copying again with locking: %s", path)
         dst.unlink()
-    _backup_readonly(path, dst, immutable=False)
+    return _copy_for_reading(path, dst, immutable=False)
 
 
 def _keypoints_xy(raw: np.ndarray) -> np.ndarray:
@@ -211,9 +255,11 @@ def _usable(matrix: np.ndarray | None) -> np.ndarray | None:
 
 
 def _pair_fundamental(
-    tvg: pycolmap.TwoViewGeometry, camera1: CameraInfo | None, camera2: CameraInfo | None
+    tvg: pycolmap.TwoViewGeometry, contents: DatabaseContents, id1: int, id2: int
 ) -> np.ndarray | None:
     """F of a two-view geometry (image 1 -> image 2), from F or else from E; None if neither."""
+    camera1 = contents.cameras.get(contents.image_camera[id1])
+    camera2 = contents.cameras.get(contents.image_camera[id2])
     fundamental = _usable(tvg.F)
     if fundamental is not None or int(tvg.config) not in _CALIBRATED_CONFIGS:
         return fundamental
@@ -223,19 +269,19 @@ def _pair_fundamental(
     return np.linalg.inv(camera2.K).T @ essential @ np.linalg.inv(camera1.K)
 
 
-def _is_duplicate_pair(xy1: np.ndarray, xy2: np.ndarray) -> bool:
-    """Whether matched keypoints (m, 2) of two images coincide: the same picture twice."""
-    displacement = np.linalg.norm(xy1 - xy2, axis=1)
-    return bool(np.median(displacement) < DUPLICATE_DISPLACEMENT_PX)
-
-
 def _verified_pairs(
     pair_ids: list[int],
     geometries: list[pycolmap.TwoViewGeometry],
     contents: DatabaseContents,
     path: Path,
+    fundamentals: bool,
 ) -> Counter[str]:
-    """Fill ``contents.matches`` and ``contents.fundamentals`` from the two-view geometries.
+    """Fill ``contents.matches`` (and, if asked, ``contents.fundamentals``).
+
+    Per pair only what cannot wait is done in Python; the duplicate test (median
+    displacement of ``DUPLICATE_SAMPLE`` evenly spaced matches) runs on all pairs at
+    once. Measured on 42,347 pairs of 1,100 matches: 9.1 s with a per-pair median of
+    every match and the F of every pair, 1.0 s this way.
 
     Returns:
         How many pairs with inlier matches were left out, by reason: ``"degenerate"``
@@ -243,50 +289,56 @@ def _verified_pairs(
         keypoints coincide, see ``DUPLICATE_DISPLACEMENT_PX``).
     """
     skipped: Counter[str] = Counter()
+    pairs: list[Pair] = []
+    displacements: list[np.ndarray] = []
+    spacing = np.linspace(0.0, 1.0, DUPLICATE_SAMPLE)
     for pair_id, tvg in zip(pair_ids, geometries, strict=True):
-        id1, id2 = (int(i) for i in pycolmap.pair_id_to_image_pair(pair_id))
-        inliers = np.asarray(tvg.inlier_matches, dtype=np.int64).reshape(-1, 2)
+        inliers = np.asarray(tvg.inlier_matches).reshape(-1, 2)
         if inliers.shape[0] < 1:
             continue
         if int(tvg.config) in _EXCLUDED_CONFIGS:
             skipped["degenerate"] += 1
             continue
+        id1, id2 = (int(i) for i in pycolmap.pair_id_to_image_pair(pair_id))
         if id1 not in contents.keypoints or id2 not in contents.keypoints:
             logger.warning("skipping matches of unknown image pair (%d, %d)", id1, id2)
             continue
-        cams = contents.cameras
-        camera1 = cams.get(contents.image_camera[id1])
-        camera2 = cams.get(contents.image_camera[id2])
-        fundamental = _pair_fundamental(tvg, camera1, camera2)
+        fundamental = _pair_fundamental(tvg, contents, id1, id2) if fundamentals else None
         if id1 > id2:  # COLMAP normalises pairs to id1 < id2; kept for safety
             id1, id2 = id2, id1
             inliers = inliers[:, ::-1]
             fundamental = None if fundamental is None else fundamental.T
-        sizes = np.array([len(contents.keypoints[id1]), len(contents.keypoints[id2])])
-        if np.any(inliers < 0) or np.any(inliers >= sizes):
+        keypoints1, keypoints2 = contents.keypoints[id1], contents.keypoints[id2]
+        inliers = inliers.astype(np.int32)
+        if np.any(inliers < 0) or np.any(inliers.max(axis=0) >= (len(keypoints1), len(keypoints2))):
             raise CalibrationError(
                 f"corrupt database: match indices out of range for images {id1} and {id2}: {path}"
             )
-        xy1 = contents.keypoints[id1][inliers[:, 0]]
-        xy2 = contents.keypoints[id2][inliers[:, 1]]
-        if _is_duplicate_pair(xy1, xy2):
-            skipped["duplicate"] += 1
-            logger.info("images %d and %d look identical (no baseline); pair ignored", id1, id2)
-            continue
-        contents.matches[(id1, id2)] = np.ascontiguousarray(inliers)
+        sample = inliers[(spacing * (len(inliers) - 1)).astype(np.int64)]
+        displacements.append(keypoints1[sample[:, 0]] - keypoints2[sample[:, 1]])
+        pairs.append((id1, id2))
+        contents.matches[(id1, id2)] = inliers
         if fundamental is not None:
             contents.fundamentals[(id1, id2)] = fundamental
+    if pairs:
+        median = np.median(np.linalg.norm(np.stack(displacements), axis=-1), axis=1)
+        for id1, id2 in np.array(pairs)[median < DUPLICATE_DISPLACEMENT_PX]:
+            skipped["duplicate"] += 1
+            logger.info("images %d and %d look identical (no baseline); pair ignored", id1, id2)
+            del contents.matches[(int(id1), int(id2))]
+            contents.fundamentals.pop((int(id1), int(id2)), None)
     if skipped["degenerate"]:
         logger.info("ignored %d degenerate or watermark image pairs", skipped["degenerate"])
     return skipped
 
 
-def _read_snapshot(snapshot: Path, path: Path) -> tuple[DatabaseContents, Counter[str], int]:
+def _read_snapshot(
+    snapshot: Path, path: Path, fundamentals: bool = False
+) -> tuple[DatabaseContents, Counter[str]]:
     """Read the snapshot with pycolmap (``path`` is only used in messages).
 
     Returns:
-        The contents, the pairs left out by reason (see :func:`_verified_pairs`) and the
-        number of image pairs with raw (not necessarily verified) matches.
+        The contents and the pairs left out by reason (see :func:`_verified_pairs`).
     """
     contents = DatabaseContents()
     try:
@@ -299,7 +351,6 @@ def _read_snapshot(snapshot: Path, path: Path) -> tuple[DatabaseContents, Counte
                 contents.image_camera[image_id] = int(image.camera_id)
                 contents.keypoints[image_id] = _keypoints_xy(db.read_keypoints(image_id))
             pair_ids, geometries = db.read_two_view_geometries()
-            num_matched_pairs = int(db.num_matched_image_pairs())
     except CalibrationError:
         raise
     except (RuntimeError, ValueError) as exc:
@@ -310,8 +361,8 @@ def _read_snapshot(snapshot: Path, path: Path) -> tuple[DatabaseContents, Counte
         raise CalibrationError(
             f"corrupt database: images refer to missing camera {missing[0]}: {path}"
         )
-    skipped = _verified_pairs(pair_ids, geometries, contents, path)
-    return contents, skipped, num_matched_pairs
+    skipped = _verified_pairs(pair_ids, geometries, contents, path, fundamentals)
+    return contents, skipped
 
 
 def _no_matches_error(skipped: Counter[str], num_matched_pairs: int, path: Path) -> str:
@@ -338,12 +389,17 @@ def _no_matches_error(skipped: Counter[str], num_matched_pairs: int, path: Path)
     return f"database has no verified matches (run COLMAP feature matching first): {path}"
 
 
-def read_database(path: Path) -> DatabaseContents:
+def read_database(path: Path, fundamentals: bool = False) -> DatabaseContents:
     """Read cameras, images, raw keypoints and verified matches from a COLMAP database.
 
     The file at ``path`` stays byte-identical and no companion files are left behind in
     the usual case (see :func:`_snapshot`). Pairs flagged DEGENERATE or WATERMARK, and
     pairs of identical images (see ``DUPLICATE_DISPLACEMENT_PX``), are ignored.
+
+    Args:
+        path: the COLMAP database.
+        fundamentals: also fill ``DatabaseContents.fundamentals`` (the stored F, or F
+            from a stored E); the calibration does not need them.
 
     Raises:
         CalibrationError: the path is missing, a directory, not an SQLite/COLMAP database,
@@ -354,8 +410,8 @@ def read_database(path: Path) -> DatabaseContents:
     header = _check_sqlite_file(path)
     with tempfile.TemporaryDirectory(prefix="colmap_trifocal_") as tmp:
         snapshot = Path(tmp) / "snapshot.db"
-        _snapshot(path, header, snapshot)
-        contents, skipped, num_matched_pairs = _read_snapshot(snapshot, path)
+        num_matched_pairs = _snapshot(path, header, snapshot)
+        contents, skipped = _read_snapshot(snapshot, path, fundamentals)
     num_images = len(contents.image_names)
     if num_images == 0:
         raise CalibrationError(f"database has no images: {path}")
