@@ -179,5 +179,24 @@ def test_show_renders_png(tmp_path: Path) -> None:
     assert (image < 250).any(axis=2).mean() > 0.002  # not a blank white background
 
 
+def test_run_renders_png(tmp_path: Path) -> None:
+    """``run ... --png OUT`` (DESIGN.md): the pipeline, then the model rendered offscreen."""
+    assert run("demo", "--keep", tmp_path).returncode == 0
+    png = tmp_path / "run.png"
+    workspace = tmp_path / "ws"
+    result = run(
+        "run", tmp_path / "no-images", workspace, "--database", tmp_path / "demo" / "database.db",
+        "--refine", "none", "--png", png,
+    )  # fmt: skip
+    if result.returncode != 0 and "offscreen" in result.stderr and os.environ.get("CI") != "true":
+        pytest.skip(result.stderr.strip())
+    assert result.returncode == 0, result.stderr
+    assert f"wrote {png}" in result.stdout and (workspace / "report.json").is_file()
+    image = cv2.imread(str(png))
+    assert image is not None and (image < 250).any(axis=2).mean() > 0.002
+    refused = run("run", tmp_path, tmp_path / "ws2", "--png", tmp_path / "missing" / "x.png")
+    assert_one_line_error(refused, "cannot write --png")
+
+
 def test_show_missing_model(tmp_path: Path) -> None:
     assert_one_line_error(run("show", tmp_path / "nope"), "nope")

@@ -11,7 +11,12 @@ import numpy as np
 import pytest
 from test_cli import assert_one_line_error, run
 
-from colmap_trifocal.evaluation.protocol import perturbed_prior, select_sequence
+from colmap_trifocal.datasets import read_scene
+from colmap_trifocal.evaluation.protocol import (
+    perturbed_prior,
+    scene_database_path,
+    select_sequence,
+)
 from colmap_trifocal.evaluation.records import RunRecord
 from colmap_trifocal.evaluation.report import boxplots, markdown_table, summarize, write_csv
 
@@ -134,7 +139,7 @@ def test_evaluate_on_strecha(strecha_database, tmp_path: Path) -> None:
     database, folder = strecha_database("fountain-P11")
     cache = tmp_path / "cache"
     cache.mkdir()
-    shutil.copyfile(database, cache / "strecha-fountain-P11-1600.db")
+    shutil.copyfile(database, scene_database_path(read_scene("strecha", folder), cache, 1600))
     out = tmp_path / "runs.json"
     result = run(
         "evaluate", "strecha", folder, "--images", "8", "--runs", "2",

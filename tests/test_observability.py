@@ -196,7 +196,9 @@ def test_combined_information_keeps_the_larger_variance_per_direction() -> None:
 def test_warning_names_weak_and_held_parameters() -> None:
     from colmap_trifocal.results import CameraCalibration
 
-    def calibration(std: dict, observable: dict, assumptions: list[str]) -> CameraCalibration:
+    def calibration(
+        std: dict, observable: dict, assumptions: list[str], estimated: dict | None = None
+    ) -> CameraCalibration:
         return CameraCalibration(
             camera_id=3,
             model="PINHOLE",
@@ -213,6 +215,7 @@ def test_warning_names_weak_and_held_parameters() -> None:
             prior=(2700.0, 2700.0, 1536.0, 1024.0),
             start=(2700.0, 2700.0, 1536.0, 1024.0),
             assumptions=assumptions,
+            estimated=estimated or dict.fromkeys(("fx", "fy", "cx", "cy"), True),
             unconstrained_std={"fx": 41.0, "fy": 230.0, "cx": 3.0, "cy": 4.0},
         )
 
@@ -222,9 +225,14 @@ def test_warning_names_weak_and_held_parameters() -> None:
         {"fx": 41.0, "fy": None, "cx": 3.0, "cy": 4.0},
         {"fx": False, "fy": False, "cx": True, "cy": True},
         ["fy = fx"],
+        {"fx": True, "fy": False, "cx": True, "cy": True},
     )
     assert planar.warning() == (
         "camera 3: fy (std 230 px) not determined by these images (planar motion: all "
         "rotations about one axis?); fy = fx; fx (std 41 px) only weakly determined, "
         "kept as estimated"
     )
+
+    # The Fundamental baseline has no std; a failed fit is reported, without a dangling "; ".
+    failed = calibration(dict.fromkeys(everything), dict.fromkeys(everything, False), [])
+    assert failed.warning() == "camera 3: fx, fy, cx, cy only weakly determined, kept as estimated"

@@ -118,6 +118,9 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="replace the results of an earlier run in WORKSPACE",
     )
+    run.add_argument(
+        "--png", type=Path, metavar="OUT", help="render the model offscreen to this PNG (Open3D)"
+    )
 
     add_evaluate_parser(commands)
     add_synthetic_parser(commands)
@@ -252,6 +255,8 @@ def _run_pipeline(args: argparse.Namespace) -> int:
 
     if args.max_image_size < 100:
         raise CalibrationError("--max-image-size must be at least 100 pixels")
+    if args.png is not None:
+        _check_output(args.png, "--png")
     options = RunOptions(
         max_image_size=args.max_image_size,
         matcher=args.matcher,
@@ -271,6 +276,10 @@ def _run_pipeline(args: argparse.Namespace) -> int:
     for camera in report["cameras"]:
         if camera["warning"] is not None:
             print(f"warning: {camera['warning']}", file=sys.stderr)
+    if args.png is not None:
+        from .visualize import show
+
+        print(f"wrote {show(args.workspace / 'sparse' / '0', args.png)}")
     return 0
 
 

@@ -324,8 +324,11 @@ def _solve_camera(
         fallback = solve_from(start, tensors)
     estimate = theta_to_intrinsics(fallback.solution.theta, start)
     solution, model = fallback.solution, fallback.model
+    # An estimate no tensor agrees with is garbage (e.g. copies of one image with
+    # jitter); direct (no outlier defence) and a result held at the prior are exempt.
     agree = int(solution.inlier_tensors.sum())
-    if not (np.all(np.isfinite(estimate)) and min(estimate[:2]) > 0 and agree > 0):
+    checked = method != "direct" and model.dimension > 0
+    if not (np.all(np.isfinite(estimate)) and min(estimate[:2]) > 0 and (agree or not checked)):
         raise CalibrationError(
             f"camera {camera.camera_id}: no valid estimate (fx {estimate[0]:.4g}, fy "
             f"{estimate[1]:.4g}; {agree} of {len(tensors)} tensors agree): too little "

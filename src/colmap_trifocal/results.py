@@ -109,8 +109,8 @@ class CameraCalibration:
         assumption made; weakly determined ones (estimated, std above tolerance)
         with their std.
         """
-        fixed = [name for name in self.undetermined if self.std[name] is None]
-        weak = [name for name in self.undetermined if self.std[name] is not None]
+        fixed = [name for name in self.undetermined if not self.estimated[name]]
+        weak = [name for name in self.undetermined if self.estimated[name]]
         if not fixed and not weak:
             return None
         parts = []
@@ -127,7 +127,10 @@ class CameraCalibration:
                 f"{_motion_hint(fixed)}; {'; '.join(self.assumptions)}"
             )
         if weak:
-            stds = ", ".join(f"{name} (std {self.std[name]:.0f} px)" for name in weak)
+            stds = ", ".join(
+                name if self.std[name] is None else f"{name} (std {self.std[name]:.0f} px)"
+                for name in weak
+            )
             parts.append(f"{stds} only weakly determined, kept as estimated")
         return f"camera {self.camera_id}: " + "; ".join(parts)
 

@@ -19,6 +19,7 @@ would if run one after another with the same seed).
 
 from __future__ import annotations
 
+import hashlib
 import shutil
 import sqlite3
 import tempfile
@@ -146,10 +147,21 @@ def restrict_contents(contents: DatabaseContents, image_ids: list[int]) -> Datab
     )
 
 
+def scene_database_path(scene: DatasetScene, folder: Path, max_image_size: int) -> Path:
+    """Where :func:`scene_database` caches the scene's database.
+
+    The name carries a digest of the image names, so a scene cut to other views gets
+    its own database instead of a stale one.
+    """
+    names = "\n".join(v.name for v in scene.views).encode()
+    digest = hashlib.sha256(names).hexdigest()[:10]
+    return folder / f"{scene.kind}-{scene.name}-{max_image_size}-{digest}.db"
+
+
 def scene_database(scene: DatasetScene, folder: Path, max_image_size: int) -> Path:
     """The scene's database (all its images), built on first use and reused."""
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{scene.kind}-{scene.name}-{max_image_size}.db"
+    path = scene_database_path(scene, folder, max_image_size)
     if path.exists():
         return path
     partial = path.with_suffix(".partial.db")

@@ -138,11 +138,12 @@ def markdown_table(rows: list[SummaryRow]) -> str:
 
 
 def boxplots(records: list[RunRecord], path: Path, title: str = "") -> None:
-    """One panel per configuration, one box per method (error in %, log scale)."""
-    import matplotlib
+    """One panel per configuration, one box per method (error in %, log scale).
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    Drawn on a :class:`matplotlib.figure.Figure` without pyplot, so the caller's
+    backend (a notebook's inline plots, say) is left alone.
+    """
+    from matplotlib.figure import Figure
 
     groups: dict[tuple, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
     for r in records:
@@ -154,9 +155,8 @@ def boxplots(records: list[RunRecord], path: Path, title: str = "") -> None:
         raise ValueError("no successful run to plot")
     columns = min(len(keys), 4)
     rows = int(np.ceil(len(keys) / columns))
-    figure, axes = plt.subplots(
-        rows, columns, figsize=(4.2 * columns, 3.6 * rows), squeeze=False, sharey=True
-    )
+    figure = Figure(figsize=(4.2 * columns, 3.6 * rows))
+    axes = figure.subplots(rows, columns, squeeze=False, sharey=True)
     for axis, key in zip(axes.ravel(), keys, strict=False):
         methods = sorted(groups[key], key=_method_key)
         data = [np.maximum(groups[key][m], 1e-4) for m in methods]
@@ -177,7 +177,6 @@ def boxplots(records: list[RunRecord], path: Path, title: str = "") -> None:
         figure.suptitle(title)
     figure.tight_layout()
     figure.savefig(path, dpi=110)
-    plt.close(figure)
 
 
 def write_json(records: list[RunRecord], path: Path) -> None:
