@@ -11,14 +11,14 @@ import json
 import os
 import resource
 import shutil
-import sys
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 
 import numpy as np
 import pycolmap
+
+from colmap_trifocal.reconstruction import silenced_stderr
 
 #: Strecha camera (fountain-P11 / Herz-Jesus-P8), 3072 x 2048, pixels.
 STRECHA_INTRINSICS = (2759.48, 2764.16, 1520.69, 1006.81)
@@ -47,22 +47,9 @@ def parse_intrinsics(text: str) -> np.ndarray:
     return values
 
 
-@contextmanager
-def quiet_stderr(enabled: bool = True) -> Iterator[None]:
+def quiet_stderr(enabled: bool = True) -> AbstractContextManager[None]:
     """Silence file descriptor 2 (glog, where COLMAP logs) for the duration of a call."""
-    if not enabled:
-        yield
-        return
-    sys.stderr.flush()
-    saved = os.dup(2)
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, 2)
-    try:
-        yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-        os.close(devnull)
+    return silenced_stderr() if enabled else nullcontext()
 
 
 def copy_with_camera(database: Path, target: Path, params: np.ndarray | None) -> Path:

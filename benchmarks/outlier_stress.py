@@ -59,7 +59,7 @@ from scipy.spatial.transform import Rotation
 
 from colmap_trifocal import CalibrationError, CalibrationOptions, calibrate_contents_methods
 from colmap_trifocal.database import read_database
-from colmap_trifocal.demo import DEMO_INTRINSICS, DEMO_SIZE
+from colmap_trifocal.demo import DEMO_INTRINSICS, DEMO_SIZE, demo_dataset_options
 from colmap_trifocal.synthetic_database import wrong_partners
 from colmap_trifocal.trifocal import intrinsics_matrix
 
@@ -98,16 +98,7 @@ def make_outlier_database(
     if model not in MODELS:
         raise ValueError(f"unknown outlier model {model!r} (choose from {MODELS})")
     pycolmap.set_random_seed(seed)
-    options = pycolmap.SyntheticDatasetOptions(
-        num_rigs=1,
-        num_cameras_per_rig=1,
-        num_frames_per_rig=num_images,
-        num_points3D=num_points,
-        camera_model_id=pycolmap.CameraModelId.PINHOLE,
-        camera_params=list(DEMO_INTRINSICS),
-        camera_width=DEMO_SIZE[0],
-        camera_height=DEMO_SIZE[1],
-    )
+    options = demo_dataset_options(num_images, num_points)
     rng = np.random.default_rng([seed, int(round(ratio * 1000)), MODELS.index(model)])
     truth = np.array(DEMO_INTRINSICS)
     prior = truth * (1.0 + prior_error * rng.choice([-1.0, 1.0], size=4))

@@ -47,6 +47,7 @@ from benchlib import (
 
 from colmap_trifocal import CalibrationOptions, calibrate_database
 from colmap_trifocal.features import build_database
+from colmap_trifocal.reconstruction import mapping_options
 
 CALIBRATE_METHODS = ("msac-opt", "msac", "direct", "fundamental")
 
@@ -129,12 +130,7 @@ def time_mapping(
     copy = copy_with_camera(database, work / "mapping.db", prior)
     output = work / "sparse"
     output.mkdir(exist_ok=True)
-    options = pycolmap.IncrementalPipelineOptions()
-    options.random_seed = seed
-    options.ba_refine_focal_length = True
-    options.ba_refine_principal_point = True
-    options.ba_refine_extra_params = False
-    options.extract_colors = images is not None
+    options = mapping_options(refine_intrinsics=True, seed=seed, colours=images is not None)
     with Stopwatch() as watch, quiet_stderr():
         models = pycolmap.incremental_mapping(copy, images or output, output, options)
     if not models:

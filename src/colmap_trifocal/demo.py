@@ -41,6 +41,20 @@ class DemoResult:
         return float(np.mean(np.abs(self.estimate(stage) / self.truth - 1.0)))
 
 
+def demo_dataset_options(num_images: int, num_points: int) -> pycolmap.SyntheticDatasetOptions:
+    """pycolmap's synthetic scene with the demo camera: one PINHOLE camera, one rig."""
+    return pycolmap.SyntheticDatasetOptions(
+        num_rigs=1,
+        num_cameras_per_rig=1,
+        num_frames_per_rig=num_images,
+        num_points3D=num_points,
+        camera_model_id=pycolmap.CameraModelId.PINHOLE,
+        camera_params=list(DEMO_INTRINSICS),
+        camera_width=DEMO_SIZE[0],
+        camera_height=DEMO_SIZE[1],
+    )
+
+
 def make_demo_database(
     path: Path,
     seed: int = 0,
@@ -56,16 +70,7 @@ def make_demo_database(
     a share ``1 − inlier_ratio`` of every pair's verified matches is wrong.
     """
     pycolmap.set_random_seed(seed)
-    options = pycolmap.SyntheticDatasetOptions(
-        num_rigs=1,
-        num_cameras_per_rig=1,
-        num_frames_per_rig=num_images,
-        num_points3D=num_points,
-        camera_model_id=pycolmap.CameraModelId.PINHOLE,
-        camera_params=list(DEMO_INTRINSICS),
-        camera_width=DEMO_SIZE[0],
-        camera_height=DEMO_SIZE[1],
-    )
+    options = demo_dataset_options(num_images, num_points)
     truth = np.array(DEMO_INTRINSICS)
     rng = np.random.default_rng(seed)
     prior = truth * (1.0 + prior_error * rng.choice([-1.0, 1.0], size=4))

@@ -68,12 +68,7 @@ def incremental_mapping(
         seed: random seed of the mapper.
         progress: show a bar of registered images.
     """
-    options = pycolmap.IncrementalPipelineOptions()
-    options.random_seed = seed
-    options.ba_refine_focal_length = refine_intrinsics_while_mapping
-    options.ba_refine_principal_point = refine_intrinsics_while_mapping
-    options.ba_refine_extra_params = False
-    options.extract_colors = image_dir is not None
+    options = mapping_options(refine_intrinsics_while_mapping, seed, image_dir is not None)
     output_dir.mkdir(parents=True, exist_ok=True)
     with pycolmap.Database.open(str(database)) as db:
         num_images = db.num_images()
@@ -101,6 +96,20 @@ def incremental_mapping(
     return largest
 
 
+def mapping_options(
+    refine_intrinsics: bool, seed: int, colours: bool
+) -> pycolmap.IncrementalPipelineOptions:
+    """Incremental mapping options: focal length and principal point refined while
+    mapping (or both held), distortion held, seeded; point colours read from the images."""
+    options = pycolmap.IncrementalPipelineOptions()
+    options.random_seed = seed
+    options.ba_refine_focal_length = refine_intrinsics
+    options.ba_refine_principal_point = refine_intrinsics
+    options.ba_refine_extra_params = False
+    options.extract_colors = colours
+    return options
+
+
 def refine_intrinsics(reconstruction: pycolmap.Reconstruction) -> None:
     """Global bundle adjustment refining focal lengths and principal points (in place)."""
     options = pycolmap.BundleAdjustmentOptions()
@@ -125,6 +134,16 @@ def keep_colmap_quiet() -> Iterator[None]:
     if level < 1:
         yield
         return
+    try:
+        with silenced_stderr():
+            yield
+    finally:
+        pycolmap.logging.minloglevel = level
+
+
+@contextmanager
+def silenced_stderr() -> Iterator[None]:
+    """Send file descriptor 2 (where glog, COLMAP's logger, writes) to /dev/null."""
     sys.stderr.flush()
     saved = os.dup(2)
     devnull = os.open(os.devnull, os.O_WRONLY)
@@ -135,7 +154,6 @@ def keep_colmap_quiet() -> Iterator[None]:
         os.dup2(saved, 2)
         os.close(saved)
         os.close(devnull)
-        pycolmap.logging.minloglevel = level
 
 
 def mean_reprojection_error(reconstruction: pycolmap.Reconstruction) -> float:
