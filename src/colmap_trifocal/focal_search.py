@@ -15,7 +15,7 @@ length. For each candidate ``f = factor · f0`` on a log-spaced grid (0.5–2×,
 steps of 12 %), with square pixels and the starting principal point, the cost
 of a triplet is the mean truncated squared transfer error of its calibrated
 hypothesis (pixels², on a random subset of its tracks); costs are summed over
-the triplets with most tracks and the grid minimum is refined by a parabola in
+the first selected triplets and the grid minimum is refined by a parabola in
 log f. Measured on both Strecha scenes from the default camera: focal length
 within 1–4 % of the truth (3 seeds), enough for the tensor stage to behave as from a
 ±5 % prior. Candidates below the grid's 12 % spacing are not resolved here;

@@ -77,7 +77,8 @@ class CalibrationOptions:
     #: Replace the prior's focal length by a search over calibrated three-view
     #: hypotheses (:mod:`.focal_search`) before estimating the tensors.
     focal_search: bool = True
-    #: Triplets (those with most tracks) the focal search uses.
+    #: Triplets the focal search uses (the first selected ones: the one with most
+    #: tracks, then the best-matched of the rest spread over the images).
     search_triplets: int = 6
     #: Re-estimate the tensors once from the estimate when it lies more than
     #: ``RESTART_THRESHOLD`` (relative to the focal length) from the start, using
