@@ -15,12 +15,12 @@ import json
 import os
 import signal
 import sys
-import tempfile
 import threading
 from pathlib import Path
 
 from . import __version__
 from .errors import CalibrationError
+from .files import write_text_atomically
 
 EXIT_INPUT_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -157,36 +157,6 @@ def _configure_logging(verbosity: int) -> None:
     logger.setLevel(logging.DEBUG if verbosity > 1 else logging.INFO)
 
 
-def _write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` without ever leaving a truncated file behind.
-
-    A regular (or new) file is written to a temporary file in the same folder, flushed
-    to disk and renamed over ``path``; on any error the temporary file is removed and
-    ``path`` is as before. Anything else (``/dev/stdout``, a pipe) is written directly.
-
-    Raises:
-        OSError: the file could not be written (no space, no permission, ...).
-    """
-    path = Path(os.path.realpath(path))  # through a symlink, not over it
-    if path.exists() and not path.is_file():
-        with path.open("w") as stream:
-            stream.write(text)
-        return
-    fd, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.fchmod(fd, 0o666 & ~umask)
-        with os.fdopen(fd, "w") as stream:
-            stream.write(text)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
-
-
 def _check_output(path: Path, option: str) -> None:
     """Refuse an output that :func:`_write_text` cannot write, before any work is done."""
     if path.exists() and not path.is_file():  # a device or a pipe, written directly
@@ -202,8 +172,9 @@ def _check_output(path: Path, option: str) -> None:
 
 def _run_calibrate(args: argparse.Namespace) -> int:
     from .database import check_writable
-    from .pipeline import CalibrationOptions, calibrate_database, parse_prior
+    from .pipeline import CalibrationOptions, calibrate_database, parse_prior, write_calibrations
 
+    # The database is written last (after the JSON), by write_calibrations below.
     options = CalibrationOptions(
         method=args.method,
         prior=parse_prior(args.prior) if args.prior is not None else None,
@@ -212,7 +183,6 @@ def _run_calibrate(args: argparse.Namespace) -> int:
         max_triplets=args.max_triplets,
         focal_search=not args.no_focal_search,
         no_prior=args.no_prior,
-        write=args.write,
         progress=not args.no_progress and sys.stderr.isatty(),
     )
     if args.max_triplets < 1:
@@ -237,13 +207,15 @@ def _run_calibrate(args: argparse.Namespace) -> int:
             print(f"warning: {warning}", file=sys.stderr)
     if args.json is not None:
         try:
-            _write_text(args.json, json.dumps([r.to_json() for r in results], indent=2) + "\n")
+            write_text_atomically(
+                args.json, json.dumps([r.to_json() for r in results], indent=2) + "\n"
+            )
         except OSError as exc:
             raise CalibrationError(f"cannot write {args.json}: {exc.strerror or exc}") from None
     if args.write:
-        written = [r for r in results if r.determined_anything]
+        written = write_calibrations(args.database, results)
         if written:
-            print(f"wrote {len(written)} camera(s) to {args.database}")
+            print(f"wrote {written} camera(s) to {args.database}")
         for r in results:
             if not r.determined_anything:
                 print(f"camera {r.camera_id} not written: the images determine none of its values")

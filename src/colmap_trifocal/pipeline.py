@@ -138,17 +138,31 @@ def calibrate_database(
     contents = read_database(path)
     results = calibrate_contents(contents, options)
     if options.write:
-        # A camera the images determined nothing of keeps its stored parameters:
-        # writing the prior back would record a guess as a calibration.
-        updated = {
-            r.camera_id: contents.cameras[r.camera_id].with_intrinsics(r.fx, r.fy, r.cx, r.cy)
-            for r in results
-            if r.determined_anything
-        }
-        if updated:
-            backup = write_intrinsics(path, updated)
-            logger.info("wrote %d camera(s) to %s (backup: %s)", len(updated), path, backup)
+        write_calibrations(path, results)
     return results
+
+
+def write_calibrations(path: Path | str, results: list[CameraCalibration]) -> int:
+    """Store the estimates in the database at ``path`` (backup first, one transaction).
+
+    A camera the images determined nothing of keeps its stored parameters: writing
+    the prior back would record a guess as a calibration. Distortion is kept.
+
+    Returns:
+        The number of cameras written.
+
+    Raises:
+        CalibrationError: see :func:`.database.write_intrinsics`.
+    """
+    updated = {
+        r.camera_id: r.stored_camera.with_intrinsics(r.fx, r.fy, r.cx, r.cy)
+        for r in results
+        if r.determined_anything and r.stored_camera is not None
+    }
+    if updated:
+        backup = write_intrinsics(Path(path), updated)
+        logger.info("wrote %d camera(s) to %s (backup: %s)", len(updated), path, backup)
+    return len(updated)
 
 
 def calibrate_contents(
@@ -367,6 +381,7 @@ def _solve_camera(
         },
         triplets=_triplet_reports(tensors, solution, start),
         tensors=tensors,
+        stored_camera=camera,
     )
 
 
@@ -497,4 +512,5 @@ def _fundamental(data: _CameraInput, start: float) -> CameraCalibration:
         seconds=time.perf_counter() - start,
         prior=tuple(map(float, prior)),  # type: ignore[arg-type]
         start=tuple(map(float, prior)),  # type: ignore[arg-type]
+        stored_camera=camera,
     )

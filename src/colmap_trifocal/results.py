@@ -11,6 +11,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from .cameras import CameraInfo
 from .parametrization import PARAMETER_NAMES
 from .tensor_estimation import TripletTensor
 
@@ -78,6 +79,8 @@ class CameraCalibration:
     unconstrained_std: dict[str, float | None] = field(default_factory=dict)
     triplets: list[TripletReport] = field(default_factory=list)
     tensors: list[TripletTensor] = field(default_factory=list, repr=False)
+    #: The camera as stored in the database (model, size, distortion), for writing.
+    stored_camera: CameraInfo | None = field(default=None, repr=False)
 
     @property
     def intrinsics(self) -> np.ndarray:
@@ -98,6 +101,7 @@ class CameraCalibration:
         """The JSON object of DESIGN.md (plus prior, start, assumptions, triplets)."""
         data = asdict(self)
         data.pop("tensors")
+        data.pop("stored_camera")
         data["prior"] = dict(zip(PARAMETER_NAMES, self.prior, strict=True))
         data["start"] = dict(zip(PARAMETER_NAMES, self.start, strict=True))
         return data

@@ -30,6 +30,7 @@ import pycolmap
 from .database import read_database, write_intrinsics
 from .errors import CalibrationError
 from .features import build_database
+from .files import write_text_atomically
 from .log import logger
 from .pipeline import PARAMETER_NAMES, CalibrationOptions, calibrate_contents
 from .reconstruction import (
@@ -167,7 +168,7 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
     model_dir.mkdir(parents=True, exist_ok=True)
     reconstruction.write(model_dir)
     report = build_report(reconstruction, calibrations, seconds, options)
-    (workspace / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    write_text_atomically(workspace / "report.json", json.dumps(report, indent=2) + "\n")
     logger.info("wrote %s", workspace / "report.json")
     return report
 
