@@ -62,15 +62,19 @@ HELD_PRINCIPAL_POINT_STD = 0.10
 TIED_ASPECT_STD = 0.01
 
 
-def relative_std(information: np.ndarray, parametrization: Parametrization) -> np.ndarray:
-    """Std (4,) of θ under a parametrization: relative to the focal length.
+def conditioned_covariance(
+    information: np.ndarray, parametrization: Parametrization
+) -> tuple[np.ndarray, np.ndarray]:
+    """Covariance (4, 4) of θ ``A (Aᵀ H A)⁻¹ Aᵀ`` without the null directions of ``Aᵀ H A``.
 
-    0 for held parameters, ``inf`` for parameters along a null (or non-positive)
-    direction of ``Aᵀ H A``.
+    Returns:
+        The covariance (zero for held parameters and along null directions) and a
+        (4,) mask of the θ that depend on an unknown with a component along a null
+        (or non-positive) direction: those are undetermined.
     """
     matrix = parametrization.matrix
     if parametrization.dimension == 0:
-        return np.zeros(4)
+        return np.zeros((4, 4)), np.zeros(4, dtype=bool)
     reduced = matrix.T @ information @ matrix
     eigenvalues, eigenvectors = np.linalg.eigh(0.5 * (reduced + reduced.T))
     largest = max(float(eigenvalues[-1]), 0.0)
@@ -78,14 +82,21 @@ def relative_std(information: np.ndarray, parametrization: Parametrization) -> n
     if largest <= 0.0:
         null[:] = True
     kept = eigenvectors[:, ~null]
-    covariance_free = (kept / eigenvalues[~null]) @ kept.T
-    variance = np.diag(parametrization.covariance(covariance_free)).copy()
-    # An unknown with a component along a null direction is undetermined, and so is
-    # every θ that depends on it.
+    covariance = parametrization.covariance((kept / eigenvalues[~null]) @ kept.T)
     undetermined_free = (eigenvectors[:, null] ** 2).sum(axis=1) > 1e-6
     undetermined = (np.abs(matrix[:, undetermined_free]) > 0).any(axis=1)
-    variance[undetermined] = np.inf
-    return np.sqrt(np.maximum(variance, 0.0))
+    return covariance, undetermined
+
+
+def relative_std(information: np.ndarray, parametrization: Parametrization) -> np.ndarray:
+    """Std (4,) of θ under a parametrization: relative to the focal length.
+
+    0 for held parameters, ``inf`` for undetermined ones (:func:`conditioned_covariance`).
+    """
+    covariance, undetermined = conditioned_covariance(information, parametrization)
+    std = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    std[undetermined] = np.inf
+    return std
 
 
 def constraint_information(model: Model, base: Model, start: np.ndarray) -> np.ndarray:

@@ -327,7 +327,7 @@ def _solve_camera(
 
     start, tensors = prepared.start, prepared.tensors
     fallback = solve_from(start, tensors)
-    restart = _restart_point(fallback, start, tolerance(start, camera.width, camera.height))
+    restart = _restart_point(fallback, start)
     if options.restart and method != "direct" and _moved(restart, start):
         logger.info(
             "camera %d: estimate far from the start; re-estimating the tensors", camera.camera_id
@@ -352,7 +352,7 @@ def _solve_camera(
     if model != base:
         logger.info("camera %d: assumed %s", camera.camera_id, "; ".join(model.assumptions()))
     estimated = model.estimated(camera.single_focal)
-    within = fallback.relative_std < tolerance(start, camera.width, camera.height)
+    within = fallback.relative_std < fallback.tolerances
     observable = {
         name: estimated[name] and bool(ok) for name, ok in zip(PARAMETER_NAMES, within, strict=True)
     }
@@ -370,7 +370,7 @@ def _solve_camera(
         },
         observable=observable,
         num_triplets=len(tensors),
-        num_inlier_triplets=int(solution.inlier_tensors.sum()),
+        num_inlier_triplets=agree,
         seconds=prepared.seconds + time.perf_counter() - clock,
         prior=tuple(map(float, data.prior)),  # type: ignore[arg-type]
         start=tuple(map(float, start)),  # type: ignore[arg-type]
@@ -443,9 +443,7 @@ def _estimate_tensors(
     return tensors
 
 
-def _restart_point(
-    fallback: FallbackSolution, start: np.ndarray, tolerances: np.ndarray
-) -> np.ndarray:
+def _restart_point(fallback: FallbackSolution, start: np.ndarray) -> np.ndarray:
     """Where to re-estimate the tensors from: the unconstrained estimate, where trusted.
 
     Parameters whose unconstrained std exceeds ``FALLBACK_FACTOR`` tolerances keep
@@ -454,7 +452,7 @@ def _restart_point(
     """
     unconstrained = fallback.unconstrained
     estimate = theta_to_intrinsics(unconstrained.theta, start)
-    trusted = unconstrained.relative_std < FALLBACK_FACTOR * tolerances
+    trusted = unconstrained.relative_std < FALLBACK_FACTOR * fallback.tolerances
     point = np.where(trusted, estimate, start)
     if trusted[0] and not trusted[1]:
         point[1] = point[0] * start[1] / start[0]

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from .observability import effective_std, relative_std, select_model
+from .observability import conditioned_covariance, effective_std, relative_std, select_model
 from .parametrization import FULL, Model, Parametrization
 from .tensor_estimation import TripletTensor
 from .trifocal import (
@@ -327,7 +327,7 @@ class SelfCalibrationResult:
     """θ estimate with its covariance and the per-tensor diagnostics."""
 
     theta: np.ndarray  # (4,)
-    covariance: np.ndarray  # (4, 4) of θ (zero rows for held parameters)
+    covariance: np.ndarray  # (4, 4) of θ (zero for held parameters and null directions)
     #: (4, 4) about θ at the estimate: curvature and jackknife combined (see uncertainty)
     information: np.ndarray
     relative_std: np.ndarray  # (4,) std of θ; 0 held, inf undetermined
@@ -401,7 +401,7 @@ def solve(
     information = combined_information(curvature, replicates, span)
     return SelfCalibrationResult(
         theta=theta,
-        covariance=covariance_of(information, parametrization),
+        covariance=conditioned_covariance(information, parametrization)[0],
         information=information,
         relative_std=relative_std(information, parametrization),
         jackknife=replicates,
@@ -411,14 +411,6 @@ def solve(
         per_tensor_theta=candidates,
         per_tensor_scores=scores,
     )
-
-
-def covariance_of(information: np.ndarray, parametrization: Parametrization) -> np.ndarray:
-    """Covariance (4, 4) of θ: ``A (Aᵀ H A)⁺ Aᵀ`` (pseudo-inverse: see observability)."""
-    if parametrization.dimension == 0:
-        return np.zeros((4, 4))
-    matrix = parametrization.matrix
-    return parametrization.covariance(np.linalg.pinv(matrix.T @ information @ matrix))
 
 
 @dataclass
@@ -431,6 +423,8 @@ class FallbackSolution:
     #: (4,) std of θ of ``model``'s estimate, its ties and holds counted as uncertain
     #: (:func:`.observability.effective_std`); meaningful for the estimated parameters.
     relative_std: np.ndarray
+    #: (4,) the std of θ below which a parameter counted as determined.
+    tolerances: np.ndarray
 
 
 def solve_with_fallback(
@@ -472,4 +466,4 @@ def solve_with_fallback(
         model = reduced
         solution = solve(tensors, method, model.parametrization(start, held), tau, span=span)
     std = effective_std(solution.information, model, base, start, held)
-    return FallbackSolution(solution, model, unconstrained, std)
+    return FallbackSolution(solution, model, unconstrained, std, tolerances)
