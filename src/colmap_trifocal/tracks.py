@@ -11,8 +11,9 @@ Selection, bounded for large databases (:func:`select_triplets`):
    images; every triangle when there are at most that many images), ranked by
    an upper bound on their track count, the smallest of their three pairs'
    match counts;
-2. exact tracks for the best-ranked candidates and the best of every image,
-   more in batches if too few reach ``min_tracks``;
+2. exact tracks for the ``CANDIDATES_PER_TRIPLET · max_triplets`` best-ranked
+   candidates and the best of every image; then further candidates, in order
+   of their bound, while fewer than that many reach ``min_tracks``;
 3. greedy spread over the view graph (:func:`spread_triplets`).
 
 Memory: keypoint lookup tables (int32, one per ordered pair) are built only for
