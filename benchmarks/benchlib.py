@@ -2,7 +2,7 @@
 
 Kept outside ``src/`` on purpose: the benchmarks must keep working while the core
 changes, so they use nothing but ``colmap_trifocal.calibrate_database``,
-``CalibrationOptions``, ``colmap_trifocal.features.build_database`` and pycolmap.
+``CalibrationOptions``, ``colmap_trifocal.database.features.build_database`` and pycolmap.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
-from colmap_trifocal.reconstruction import silenced_stderr
+from colmap_trifocal.reconstruction.mapping import silenced_stderr
 
 #: Strecha camera (fountain-P11 / Herz-Jesus-P8), 3072 x 2048, pixels.
 STRECHA_INTRINSICS = (2759.48, 2764.16, 1520.69, 1006.81)

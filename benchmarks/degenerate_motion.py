@@ -18,10 +18,10 @@ import numpy as np
 from tqdm import tqdm
 
 from colmap_trifocal import CalibrationOptions, calibrate_contents
-from colmap_trifocal.motions import forward_driving, motion_scene
-from colmap_trifocal.results import PARAMETER_NAMES
-from colmap_trifocal.synthetic import SyntheticScene
-from colmap_trifocal.synthetic_database import scene_contents
+from colmap_trifocal.intrinsics.results import PARAMETER_NAMES
+from colmap_trifocal.synthetic.database import scene_contents
+from colmap_trifocal.synthetic.motions import forward_driving, motion_scene
+from colmap_trifocal.synthetic.scenes import SyntheticScene
 
 
 def run_case(scene: SyntheticScene, seed: int) -> tuple[np.ndarray, bool, np.ndarray, np.ndarray]:

@@ -58,10 +58,10 @@ import pycolmap
 from scipy.spatial.transform import Rotation
 
 from colmap_trifocal import CalibrationError, CalibrationOptions, calibrate_contents_methods
-from colmap_trifocal.database import read_database
-from colmap_trifocal.demo import DEMO_INTRINSICS, DEMO_SIZE, demo_dataset_options
-from colmap_trifocal.synthetic_database import wrong_partners
-from colmap_trifocal.trifocal import intrinsics_matrix
+from colmap_trifocal.database.snapshot import read_database
+from colmap_trifocal.geometry.trifocal import intrinsics_matrix
+from colmap_trifocal.synthetic.database import wrong_partners
+from colmap_trifocal.synthetic.demo import DEMO_INTRINSICS, DEMO_SIZE, demo_dataset_options
 
 METHODS = ("msac-opt", "fundamental")
 MODELS = ("matches", "keypoints")

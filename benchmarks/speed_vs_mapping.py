@@ -46,8 +46,8 @@ from benchlib import (
 )
 
 from colmap_trifocal import CalibrationOptions, calibrate_database
-from colmap_trifocal.features import build_database
-from colmap_trifocal.reconstruction import mapping_options
+from colmap_trifocal.database.features import build_database
+from colmap_trifocal.reconstruction.mapping import mapping_options
 
 CALIBRATE_METHODS = ("msac-opt", "msac", "direct", "fundamental")
 

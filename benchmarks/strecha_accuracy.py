@@ -20,13 +20,13 @@ import numpy as np
 import pycolmap
 
 from colmap_trifocal import CalibrationOptions, calibrate_contents
-from colmap_trifocal.database import read_database
+from colmap_trifocal.database.features import build_database
+from colmap_trifocal.database.snapshot import read_database
 from colmap_trifocal.datasets.strecha import (
     default_datasets_root,
     ground_truth_intrinsics,
     scene_images,
 )
-from colmap_trifocal.features import build_database
 
 ROOT = Path(__file__).resolve().parents[1]
 METHODS = ("msac-opt", "msac", "direct", "fundamental")

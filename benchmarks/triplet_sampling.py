@@ -2,7 +2,7 @@
 
 On one database with a known camera: msac-opt from the same ±5 % priors (one per
 seed) with at most 10, 20 (the default) and 40 triplets chosen by
-:func:`colmap_trifocal.tracks.select_triplets`, and with every triplet of the
+:func:`colmap_trifocal.geometry.tracks.select_triplets`, and with every triplet of the
 view graph that has enough tracks (``max_triplets=None``). Prints the mean and
 max of the mean relative error of (fx, fy, cx, cy) in percent and the mean time.
 
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from colmap_trifocal import CalibrationOptions, calibrate_contents
-from colmap_trifocal.database import read_database
+from colmap_trifocal.database.snapshot import read_database
 
 
 def main() -> None:

@@ -9,8 +9,8 @@ import numpy as np
 import pycolmap
 import pytest
 
+from colmap_trifocal.database.features import build_database
 from colmap_trifocal.datasets.strecha import default_datasets_root, scene_images
-from colmap_trifocal.features import build_database
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 

@@ -1,4 +1,4 @@
-"""Tests of colmap_trifocal.cameras against pycolmap's camera models."""
+"""Tests of colmap_trifocal.database.cameras against pycolmap's camera models."""
 
 from __future__ import annotations
 
@@ -6,14 +6,14 @@ import numpy as np
 import pycolmap
 import pytest
 
-from colmap_trifocal.cameras import (
+from colmap_trifocal.common.errors import CalibrationError
+from colmap_trifocal.database.cameras import (
     SINGLE_FOCAL_MODELS,
     SUPPORTED_MODELS,
     CameraInfo,
     check_supported,
     undistort_to_pinhole,
 )
-from colmap_trifocal.errors import CalibrationError
 
 WIDTH, HEIGHT = 1200, 800
 

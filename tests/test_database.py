@@ -1,4 +1,4 @@
-"""Tests of colmap_trifocal.database on small databases made by pycolmap.synthesize_dataset."""
+"""Tests of colmap_trifocal.database.snapshot on databases made by pycolmap.synthesize_dataset."""
 
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ import pycolmap
 import pytest
 
 from colmap_trifocal import database as database_module
-from colmap_trifocal.cameras import CameraInfo
-from colmap_trifocal.database import read_database, write_intrinsics
-from colmap_trifocal.errors import CalibrationError
+from colmap_trifocal.common.errors import CalibrationError
+from colmap_trifocal.database.cameras import CameraInfo
+from colmap_trifocal.database.snapshot import read_database, write_intrinsics
 
 SIMPLE_RADIAL_PARAMS = [1280.0, 512.0, 384.0, 0.05]
 PINHOLE_PARAMS = [1100.0, 1250.0, 530.0, 370.0]

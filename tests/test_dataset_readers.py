@@ -8,10 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
+from colmap_trifocal.common.errors import CalibrationError
 from colmap_trifocal.datasets import DATASET_KINDS, DatasetScene, GroundTruthView, read_scene
 from colmap_trifocal.datasets.base import from_opencv
 from colmap_trifocal.datasets.dtu import decompose_projection
-from colmap_trifocal.errors import CalibrationError
 
 SQRT_HALF = np.sqrt(0.5)
 

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 from colmap_trifocal import CalibrationOptions, CameraCalibration, calibrate_contents
-from colmap_trifocal.motions import forward_driving, motion_scene
-from colmap_trifocal.results import PARAMETER_NAMES
-from colmap_trifocal.synthetic import SyntheticScene
-from colmap_trifocal.synthetic_database import scene_contents, write_database
+from colmap_trifocal.intrinsics.results import PARAMETER_NAMES
+from colmap_trifocal.synthetic.database import scene_contents, write_database
+from colmap_trifocal.synthetic.motions import forward_driving, motion_scene
+from colmap_trifocal.synthetic.scenes import SyntheticScene
 
 
 def prior_of(truth: np.ndarray, seed: int) -> np.ndarray:
@@ -128,7 +128,7 @@ def test_exact_degeneracy_without_noise(motion: str, expected: dict[str, bool]) 
 
 def test_too_few_tracks_are_flagged() -> None:
     """One short-baseline triplet of 45 noisy tracks: nothing can be trusted."""
-    from colmap_trifocal.synthetic import make_scene
+    from colmap_trifocal.synthetic.scenes import make_scene
 
     scene = make_scene(
         45, 3, noise_px=1.0, seed=4, cone_deg=2.0, min_separation_deg=2.0, radius=12.0

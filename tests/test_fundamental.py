@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from colmap_trifocal.errors import CalibrationError
-from colmap_trifocal.fundamental import (
+from colmap_trifocal.common.errors import CalibrationError
+from colmap_trifocal.intrinsics.fundamental import (
     FundamentalCalibResult,
     _basis,
     _calibrate,

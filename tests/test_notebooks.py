@@ -28,7 +28,7 @@ from jupyter_client.kernelspec import KernelSpecManager
 from nbclient import NotebookClient
 
 from colmap_trifocal.datasets.strecha import default_datasets_root
-from colmap_trifocal.demo import make_demo_database
+from colmap_trifocal.synthetic.demo import make_demo_database
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = PROJECT_ROOT / "notebooks"

@@ -5,22 +5,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from colmap_trifocal.observability import (
+from colmap_trifocal.intrinsics.observability import (
     MAX_RELATIVE_STD,
     effective_std,
     relative_std,
     select_model,
     tolerance,
 )
-from colmap_trifocal.parametrization import (
+from colmap_trifocal.intrinsics.parametrization import (
     FULL,
     HELD,
     SINGLE_FOCAL,
     Model,
     candidate_models,
 )
-from colmap_trifocal.selfcalibration import intrinsics_to_theta, theta_to_intrinsics
-from colmap_trifocal.uncertainty import (
+from colmap_trifocal.intrinsics.selfcalibration import intrinsics_to_theta, theta_to_intrinsics
+from colmap_trifocal.intrinsics.uncertainty import (
     combined_information,
     image_groups,
     jackknife_covariance,
@@ -194,7 +194,7 @@ def test_combined_information_keeps_the_larger_variance_per_direction() -> None:
 
 
 def test_warning_names_weak_and_held_parameters() -> None:
-    from colmap_trifocal.results import CameraCalibration
+    from colmap_trifocal.intrinsics.results import CameraCalibration
 
     def calibration(
         std: dict, observable: dict, assumptions: list[str], estimated: dict | None = None

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from colmap_trifocal import CalibrationOptions, calibrate_database
-from colmap_trifocal.database import read_database
+from colmap_trifocal.database.snapshot import read_database
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from outlier_stress import make_outlier_database  # noqa: E402

@@ -10,7 +10,7 @@ import pytest
 from conftest import intrinsics_of, synthesize
 
 from colmap_trifocal import CalibrationError, CalibrationOptions, calibrate_database
-from colmap_trifocal.database import read_database
+from colmap_trifocal.database.snapshot import read_database
 
 MODELS = {
     "SIMPLE_PINHOLE": [1280.0, 512.0, 384.0],

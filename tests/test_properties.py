@@ -24,16 +24,20 @@ from hypothesis import HealthCheck, Phase, assume, example, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from colmap_trifocal.database import DatabaseContents, read_database
-from colmap_trifocal.pipeline import CalibrationOptions, CameraCalibration, calibrate_contents
-from colmap_trifocal.tensor_estimation import estimate_triplet_tensor
-from colmap_trifocal.trifocal import (
+from colmap_trifocal.database.snapshot import DatabaseContents, read_database
+from colmap_trifocal.geometry.tensor_estimation import estimate_triplet_tensor
+from colmap_trifocal.geometry.trifocal import (
     calibrate_tensor,
     intrinsics_matrix,
     linear_tensor,
     normalize_tensor,
     quartic_constraints,
     tensor_from_cameras,
+)
+from colmap_trifocal.intrinsics.calibrate import (
+    CalibrationOptions,
+    CameraCalibration,
+    calibrate_contents,
 )
 
 #: No deadline, moderate example counts: the whole file runs in well under a minute.

@@ -1,7 +1,7 @@
 """Tests of the TrifocalCalib solvers (direct, msac, msac-opt) on synthetic scenes.
 
 Each scene: 500 tracks, ±5 % prior on every parameter, tensors of all camera triplets
-(:func:`colmap_trifocal.synthetic.triplet_tensors`). Tensors are cached per module.
+(:func:`colmap_trifocal.synthetic.scenes.triplet_tensors`). Tensors are cached per module.
 """
 
 from __future__ import annotations
@@ -11,8 +11,9 @@ from functools import cache
 import numpy as np
 import pytest
 
-from colmap_trifocal.parametrization import SINGLE_FOCAL
-from colmap_trifocal.selfcalibration import (
+from colmap_trifocal.geometry.tensor_estimation import TripletTensor
+from colmap_trifocal.intrinsics.parametrization import SINGLE_FOCAL
+from colmap_trifocal.intrinsics.selfcalibration import (
     MSAC_TAU,
     ConstraintProblem,
     SelfCalibrationResult,
@@ -21,8 +22,7 @@ from colmap_trifocal.selfcalibration import (
     solve,
     theta_to_intrinsics,
 )
-from colmap_trifocal.synthetic import make_scene, perturbed_prior, triplet_tensors
-from colmap_trifocal.tensor_estimation import TripletTensor
+from colmap_trifocal.synthetic.scenes import make_scene, perturbed_prior, triplet_tensors
 
 METHODS = ("direct", "msac", "msac-opt")
 SEEDS = (0, 1, 2)

@@ -8,7 +8,7 @@ import numpy as np
 import pycolmap
 import pytest
 
-from colmap_trifocal.errors import CalibrationError
+from colmap_trifocal.common.errors import CalibrationError
 from colmap_trifocal.evaluation.records import RunRecord
 from colmap_trifocal.evaluation.synthetic_experiment import (
     SYNTHETIC_METHODS,
@@ -18,7 +18,7 @@ from colmap_trifocal.evaluation.synthetic_experiment import (
     run_synthetic_case,
     scene_contents,
 )
-from colmap_trifocal.synthetic import make_scene
+from colmap_trifocal.synthetic.scenes import make_scene
 
 ACCURACY_METHODS = ("msac-opt", "ba-floor")
 

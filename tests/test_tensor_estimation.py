@@ -5,21 +5,26 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from colmap_trifocal.projective_ba import refine_triplet
-from colmap_trifocal.synthetic import SyntheticScene, make_scene, perturbed_prior, triplet_tensors
-from colmap_trifocal.tensor_estimation import (
+from colmap_trifocal.geometry.projective_ba import refine_triplet
+from colmap_trifocal.geometry.tensor_estimation import (
     TensorEstimationOptions,
     TripletTensor,
     estimate_triplet_tensor,
     transfer_errors,
 )
-from colmap_trifocal.trifocal import (
+from colmap_trifocal.geometry.trifocal import (
     cameras_from_tensor,
     intrinsics_matrix,
     linear_tensor,
     normalize_tensor,
     quartic_constraints,
     tensor_from_cameras,
+)
+from colmap_trifocal.synthetic.scenes import (
+    SyntheticScene,
+    make_scene,
+    perturbed_prior,
+    triplet_tensors,
 )
 
 VIEWS = (0, 1, 2)

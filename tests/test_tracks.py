@@ -7,7 +7,7 @@ from itertools import combinations
 
 import numpy as np
 
-from colmap_trifocal.tracks import MatchGraph, Triplet, select_triplets, spread_triplets
+from colmap_trifocal.geometry.tracks import MatchGraph, Triplet, select_triplets, spread_triplets
 
 
 def complete_graph(num_images: int, num_tracks: int) -> MatchGraph:

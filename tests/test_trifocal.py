@@ -1,4 +1,4 @@
-"""Tests of the trifocal tensor algebra (:mod:`colmap_trifocal.trifocal`); fast, no I/O."""
+"""Tests of the trifocal tensor algebra (:mod:`colmap_trifocal.geometry.trifocal`); fast, no I/O."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from colmap_trifocal.trifocal import (
+from colmap_trifocal.geometry.trifocal import (
     NUM_CONSTRAINTS,
     calibrate_tensor,
     cameras_from_tensor,

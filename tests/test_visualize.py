@@ -1,4 +1,4 @@
-"""Tests of colmap_trifocal.visualize on a pycolmap synthetic reconstruction."""
+"""Tests of colmap_trifocal.reconstruction.visualize on a pycolmap synthetic reconstruction."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 from conftest import synthesize
 
 from colmap_trifocal import visualize
-from colmap_trifocal.errors import CalibrationError
+from colmap_trifocal.common.errors import CalibrationError
 
 try:
     import open3d as o3d

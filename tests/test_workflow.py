@@ -11,8 +11,8 @@ import pycolmap
 import pytest
 
 from colmap_trifocal import CalibrationError
-from colmap_trifocal.demo import make_demo_database
-from colmap_trifocal.workflow import RunOptions, run_pipeline
+from colmap_trifocal.reconstruction.workflow import RunOptions, run_pipeline
+from colmap_trifocal.synthetic.demo import make_demo_database
 
 
 @pytest.fixture(scope="module")

@@ -18,10 +18,10 @@ from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
 
-from .errors import CalibrationError
+from .common.errors import CalibrationError
 
 if TYPE_CHECKING:
-    from .pipeline import (
+    from .intrinsics.calibrate import (
         METHODS,
         CalibrationOptions,
         CameraCalibration,
@@ -46,9 +46,9 @@ _PIPELINE_EXPORTS = frozenset(
 
 def __getattr__(name: str) -> Any:
     if name in _PIPELINE_EXPORTS:
-        from . import pipeline
+        from .intrinsics import calibrate
 
-        return getattr(pipeline, name)
+        return getattr(calibrate, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 

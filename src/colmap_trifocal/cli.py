@@ -19,8 +19,8 @@ import threading
 from pathlib import Path
 
 from . import __version__
-from .errors import CalibrationError
-from .files import write_text_atomically
+from .common.errors import CalibrationError
+from .common.files import write_text_atomically
 
 EXIT_INPUT_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -36,11 +36,11 @@ class _OneLineParser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``colmap-trifocal`` argument parser (imports the pipeline for its defaults)."""
+    from .database.features import MATCHERS
     from .evaluation.commands import add_evaluate_parser, add_synthetic_parser
-    from .features import MATCHERS
-    from .pipeline import METHODS, CalibrationOptions
-    from .reconstruction import REFINE_CHOICES
-    from .workflow import RunOptions
+    from .intrinsics.calibrate import METHODS, CalibrationOptions
+    from .reconstruction.mapping import REFINE_CHOICES
+    from .reconstruction.workflow import RunOptions
 
     parser = _OneLineParser(
         prog="colmap-trifocal",
@@ -146,7 +146,7 @@ def _configure_logging(verbosity: int) -> None:
 
     import pycolmap
 
-    from .log import logger
+    from .common.log import logger
 
     pycolmap.logging.minloglevel = 0 if verbosity > 1 else 2  # 2: errors only
     if verbosity <= 0:
@@ -171,8 +171,13 @@ def _check_output(path: Path, option: str) -> None:
 
 
 def _run_calibrate(args: argparse.Namespace) -> int:
-    from .database import check_writable
-    from .pipeline import CalibrationOptions, calibrate_database, parse_prior, write_calibrations
+    from .database.snapshot import check_writable
+    from .intrinsics.calibrate import (
+        CalibrationOptions,
+        calibrate_database,
+        parse_prior,
+        write_calibrations,
+    )
 
     # The database is written last (after the JSON), by write_calibrations below.
     options = CalibrationOptions(
@@ -223,7 +228,7 @@ def _run_calibrate(args: argparse.Namespace) -> int:
 
 
 def _run_pipeline(args: argparse.Namespace) -> int:
-    from .workflow import RunOptions, format_report, run_pipeline
+    from .reconstruction.workflow import RunOptions, format_report, run_pipeline
 
     if args.max_image_size < 100:
         raise CalibrationError("--max-image-size must be at least 100 pixels")
@@ -249,7 +254,7 @@ def _run_pipeline(args: argparse.Namespace) -> int:
         if camera["warning"] is not None:
             print(f"warning: {camera['warning']}", file=sys.stderr)
     if args.png is not None:
-        from .visualize import show
+        from .reconstruction.visualize import show
 
         print(f"wrote {show(args.workspace / 'sparse' / '0', args.png)}")
     return 0
@@ -262,7 +267,7 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "run":
         return _run_pipeline(args)
     if args.command == "show":
-        from .visualize import show  # open3d is imported only for this command
+        from .reconstruction.visualize import show  # open3d is imported only for this command
 
         written = show(args.model, args.png)
         if written is not None:
@@ -277,7 +282,7 @@ def _dispatch(args: argparse.Namespace) -> int:
 
         return run_synthetic(args, sys.stderr.isatty())
     if args.command == "demo":
-        from .demo import format_demo, run_demo
+        from .synthetic.demo import format_demo, run_demo
 
         result = run_demo(seed=args.seed, workdir=args.keep, method=args.method)
         print(format_demo(result))

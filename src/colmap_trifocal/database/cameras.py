@@ -23,7 +23,7 @@ from functools import cache
 import numpy as np
 import pycolmap
 
-from .errors import CalibrationError
+from ..common.errors import CalibrationError
 
 SUPPORTED_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 SINGLE_FOCAL_MODELS = ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pycolmap
 
-from .errors import CalibrationError
+from ..common.errors import CalibrationError
 
 MATCHERS = ("exhaustive", "sequential")
 

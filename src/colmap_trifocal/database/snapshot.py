@@ -34,9 +34,9 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
+from ..common.errors import CalibrationError, interrupts_deferred
+from ..common.log import logger
 from .cameras import CameraInfo
-from .errors import CalibrationError, interrupts_deferred
-from .log import logger
 
 REQUIRED_TABLES = ("cameras", "images", "keypoints", "two_view_geometries")
 #: Tables whose rows the snapshot leaves out: the calibration never reads them.

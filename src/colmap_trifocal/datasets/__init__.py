@@ -3,7 +3,7 @@
 :func:`read_scene` reads one scene of any kind in :data:`DATASET_KINDS` into a
 :class:`DatasetScene` (intrinsics in COLMAP's pixel convention, poses
 world-to-camera where the format has them). Every input problem is raised as a
-one-line :class:`~colmap_trifocal.errors.CalibrationError`.
+one-line :class:`~colmap_trifocal.common.errors.CalibrationError`.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import inspect
 from collections.abc import Callable
 from pathlib import Path
 
-from ..errors import CalibrationError
+from ..common.errors import CalibrationError
 from .base import DatasetScene, GroundTruthView, one_line
 from .blendedmvs import read_blendedmvs_scene
 from .colmap_model import read_colmap_scene

@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..errors import CalibrationError
+from ..common.errors import CalibrationError
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
 #: Added to (fx, fy, cx, cy) to go from the OpenCV to the COLMAP pixel convention.

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
-from ..errors import CalibrationError
+from ..common.errors import CalibrationError
 from .base import DatasetScene, GroundTruthView, one_line, require_dir
 
 #: Folder names skipped when naming the scene after the model's location.

@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..errors import CalibrationError
+from ..common.errors import CalibrationError
 from .base import (
     DatasetScene,
     GroundTruthView,

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CalibrationError
+from ..common.errors import CalibrationError
 from .base import (
     DatasetScene,
     GroundTruthView,

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CalibrationError
+from ..common.errors import CalibrationError
 from .base import DatasetScene, GroundTruthView, parsing, pose_from_camera_to_world, require_dir
 
 #: Environment variable naming the folder that holds ``strecha/`` (default: ../shared/datasets).

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CalibrationError
+from ..common.errors import CalibrationError
 from .base import (
     OPENCV_TO_COLMAP,
     DatasetScene,

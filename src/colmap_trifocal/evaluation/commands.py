@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..common.errors import CalibrationError
 from ..datasets import DATASET_KINDS, read_scene
-from ..errors import CalibrationError
 from .protocol import DEFAULT_METHODS, EVALUATION_METHODS, EvaluationOptions, evaluate_scene
 from .records import RunRecord
 from .report import markdown_table, summarize, with_prior_rows, write_outputs

@@ -30,13 +30,13 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
-from ..database import DatabaseContents, read_database
+from ..common.errors import CalibrationError
+from ..common.log import logger
+from ..database.features import build_database
+from ..database.snapshot import DatabaseContents, read_database
 from ..datasets.base import DatasetScene
-from ..errors import CalibrationError
-from ..features import build_database
-from ..log import logger
-from ..pipeline import CalibrationOptions, calibrate_contents_methods
-from ..reconstruction import (
+from ..intrinsics.calibrate import CalibrationOptions, calibrate_contents_methods
+from ..reconstruction.mapping import (
     camera_intrinsics,
     incremental_mapping,
     keep_colmap_quiet,

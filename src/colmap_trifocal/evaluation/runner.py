@@ -11,8 +11,8 @@ from typing import Any
 import pycolmap
 from tqdm import tqdm
 
-from ..errors import CalibrationError
-from ..parallel import default_workers
+from ..common.errors import CalibrationError
+from ..common.parallel import default_workers
 
 
 def run_tasks(

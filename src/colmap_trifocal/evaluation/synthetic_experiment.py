@@ -2,14 +2,14 @@
 
 Set-up (paper, section "Experiments - Synthetic Data"): ``num_points`` 3D points
 uniformly in a cube centred at the origin, three cameras in general position
-facing the origin (:func:`colmap_trifocal.synthetic.make_scene`), one shared
+facing the origin (:func:`colmap_trifocal.synthetic.scenes.make_scene`), one shared
 camera, exact projections plus uniform pixel noise in ``[-n, +n]`` on each
 coordinate (n = 0.1, 0.5, 1.0 px in the paper) and a prior whose every parameter
 is the truth times ``1 + U(-5 %, +5 %)``. Each run draws one scene and one prior
 and calibrates them with
 
 * ``msac-opt``, ``direct`` (and ``msac``): TrifocalCalib through
-  :func:`colmap_trifocal.pipeline.calibrate_contents_methods` (the trifocal
+  :func:`colmap_trifocal.intrinsics.calibrate.calibrate_contents_methods` (the trifocal
   variants of a run share their focal search and tensors);
 * ``fundamental``: the Mendonça–Cipolla baseline on F re-fitted from the matches;
 * ``ba-floor``: a bundle adjustment of intrinsics, poses and points started from
@@ -40,12 +40,17 @@ import time
 import numpy as np
 import pycolmap
 
-from ..database import DatabaseContents
-from ..errors import CalibrationError
-from ..pipeline import METHODS, PARAMETER_NAMES, CalibrationOptions, calibrate_contents_methods
-from ..reconstruction import camera_intrinsics, keep_colmap_quiet
-from ..synthetic import SyntheticScene, make_scene, perturbed_prior
-from ..synthetic_database import CAMERA_ID, scene_contents
+from ..common.errors import CalibrationError
+from ..database.snapshot import DatabaseContents
+from ..intrinsics.calibrate import (
+    METHODS,
+    PARAMETER_NAMES,
+    CalibrationOptions,
+    calibrate_contents_methods,
+)
+from ..reconstruction.mapping import camera_intrinsics, keep_colmap_quiet
+from ..synthetic.database import CAMERA_ID, scene_contents
+from ..synthetic.scenes import SyntheticScene, make_scene, perturbed_prior
 from .records import RunRecord
 
 EXPERIMENT = "synthetic"

@@ -17,14 +17,21 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .cameras import CameraInfo, check_supported, undistort_to_pinhole
-from .database import DatabaseContents, read_database, write_intrinsics
-from .errors import CalibrationError
+from ..common.errors import CalibrationError
+from ..common.log import logger
+from ..common.parallel import map_jobs
+from ..database.cameras import CameraInfo, check_supported, undistort_to_pinhole
+from ..database.snapshot import DatabaseContents, read_database, write_intrinsics
+from ..geometry.tensor_estimation import (
+    TensorEstimationOptions,
+    TripletTensor,
+    estimate_triplet_tensor,
+)
+from ..geometry.tracks import MatchGraph, Triplet, select_triplets
+from ..geometry.trifocal import intrinsics_matrix
 from .focal_search import search_focal
 from .fundamental import calibrate_from_fundamentals
-from .log import logger
 from .observability import FALLBACK_FACTOR, tolerance
-from .parallel import map_jobs
 from .parametrization import FULL, SINGLE_FOCAL
 from .results import PARAMETER_NAMES, CameraCalibration, TripletReport, finite_or_none
 from .selfcalibration import (
@@ -34,9 +41,6 @@ from .selfcalibration import (
     solve_with_fallback,
     theta_to_intrinsics,
 )
-from .tensor_estimation import TensorEstimationOptions, TripletTensor, estimate_triplet_tensor
-from .tracks import MatchGraph, Triplet, select_triplets
-from .trifocal import intrinsics_matrix
 
 METHODS = ("msac-opt", "msac", "direct", "fundamental")
 #: See ``CalibrationOptions.restart``. Tensors normalised by a start whose principal

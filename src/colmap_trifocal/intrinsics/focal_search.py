@@ -28,9 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .parallel import map_jobs
-from .tensor_estimation import calibrated_hypothesis, transfer_errors
-from .trifocal import intrinsics_matrix
+from ..common.parallel import map_jobs
+from ..geometry.tensor_estimation import calibrated_hypothesis, transfer_errors
+from ..geometry.trifocal import intrinsics_matrix
 
 #: Candidate focal lengths relative to the start (12 % apart).
 SEARCH_FACTORS = np.geomspace(0.5, 2.0, 13)

@@ -82,8 +82,8 @@ from typing import Literal
 import numpy as np
 from scipy.optimize import least_squares
 
-from colmap_trifocal.errors import CalibrationError
-from colmap_trifocal.log import logger
+from colmap_trifocal.common.errors import CalibrationError
+from colmap_trifocal.common.log import logger
 
 __all__ = [
     "ROBUST_F_SCALE",

@@ -11,9 +11,9 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .cameras import CameraInfo
+from ..database.cameras import CameraInfo
+from ..geometry.tensor_estimation import TripletTensor
 from .parametrization import PARAMETER_NAMES
-from .tensor_estimation import TripletTensor
 
 __all__ = ["PARAMETER_NAMES", "CameraCalibration", "TripletReport"]
 

@@ -41,16 +41,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from .observability import conditioned_covariance, effective_std, relative_std, select_model
-from .parametrization import FULL, Model, Parametrization
-from .tensor_estimation import TripletTensor
-from .trifocal import (
+from ..geometry.tensor_estimation import TripletTensor
+from ..geometry.trifocal import (
     CONSTRAINT_RANK,
     calibrate_tensor,
     normalize_tensor,
     quartic_constraints,
     tensor_from_cameras,
 )
+from .observability import conditioned_covariance, effective_std, relative_std, select_model
+from .parametrization import FULL, Model, Parametrization
 from .uncertainty import combined_information, jackknife_replicates, one_step_replicate
 
 #: MSAC threshold on the whitened constraint norm ‖r_i‖ (dimensionless).

@@ -19,8 +19,8 @@ import numpy as np
 import pycolmap
 from tqdm import tqdm
 
-from .errors import CalibrationError
-from .log import logger
+from ..common.errors import CalibrationError
+from ..common.log import logger
 
 REFINE_CHOICES = ("none", "ba")
 

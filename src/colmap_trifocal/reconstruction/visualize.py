@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pycolmap
 
-from .errors import CalibrationError
+from ..common.errors import CalibrationError
 
 if TYPE_CHECKING:
     import open3d

@@ -27,13 +27,13 @@ import cv2
 import numpy as np
 import pycolmap
 
-from .database import read_database, write_intrinsics
-from .errors import CalibrationError
-from .features import build_database
-from .files import write_text_atomically
-from .log import logger
-from .pipeline import PARAMETER_NAMES, CalibrationOptions, calibrate_contents
-from .reconstruction import (
+from ..common.errors import CalibrationError
+from ..common.files import write_text_atomically
+from ..common.log import logger
+from ..database.features import build_database
+from ..database.snapshot import read_database, write_intrinsics
+from ..intrinsics.calibrate import PARAMETER_NAMES, CalibrationOptions, calibrate_contents
+from .mapping import (
     REFINE_CHOICES,
     camera_intrinsics,
     incremental_mapping,

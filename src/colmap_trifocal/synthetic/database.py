@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
-from .cameras import CameraInfo
-from .database import DatabaseContents
-from .synthetic import SyntheticScene
+from ..database.cameras import CameraInfo
+from ..database.snapshot import DatabaseContents
+from .scenes import SyntheticScene
 
 CAMERA_ID = 1
 

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
-from .pipeline import PARAMETER_NAMES
-from .synthetic_database import corrupt_verified_matches
-from .workflow import RunOptions, run_pipeline
+from ..intrinsics.calibrate import PARAMETER_NAMES
+from ..reconstruction.workflow import RunOptions, run_pipeline
+from .database import corrupt_verified_matches
 
 #: The demo camera (PINHOLE, 1600x1200): fx, fy, cx, cy in pixels.
 DEMO_INTRINSICS = (1400.0, 1420.0, 790.0, 612.0)

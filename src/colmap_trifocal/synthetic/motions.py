@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .synthetic import (
+from ..geometry.trifocal import intrinsics_matrix
+from .scenes import (
     DEFAULT_HEIGHT,
     DEFAULT_INTRINSICS,
     DEFAULT_WIDTH,
@@ -31,7 +32,6 @@ from .synthetic import (
     _project,
     make_scene,
 )
-from .trifocal import intrinsics_matrix
 
 MOTIONS = ("general", "planar", "forward", "translation")
 

@@ -1,0 +1,3 @@
+"""Stage 3, tensors → K: focal search, the 15 trifocal constraints solved per camera
+(Direct / MSAC / MSAC-Opt, FundamentalCalib baseline), observability and uncertainty.
+"""
