@@ -36,11 +36,7 @@ class _OneLineParser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``colmap-trifocal`` argument parser (imports the pipeline for its defaults)."""
-    from .database.features import MATCHERS
     from .evaluation.commands import add_evaluate_parser, add_synthetic_parser
-    from .intrinsics.calibrate import METHODS, CalibrationOptions
-    from .reconstruction.mapping import REFINE_CHOICES
-    from .reconstruction.workflow import RunOptions
 
     parser = _OneLineParser(
         prog="colmap-trifocal",
@@ -49,6 +45,18 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="-v info, -vv debug")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_OneLineParser)
+    _add_calibrate_parser(commands)
+    _add_run_parser(commands)
+    add_evaluate_parser(commands)
+    add_synthetic_parser(commands)
+    _add_show_parser(commands)
+    _add_demo_parser(commands)
+    return parser
+
+
+def _add_calibrate_parser(commands: argparse._SubParsersAction) -> None:
+    """``calibrate DATABASE``: the contract in DESIGN.md."""
+    from .intrinsics.calibrate import METHODS, CalibrationOptions
 
     calibrate = commands.add_parser(
         "calibrate", help="estimate the intrinsics of the cameras of a COLMAP database"
@@ -88,6 +96,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     calibrate.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
+
+def _add_run_parser(commands: argparse._SubParsersAction) -> None:
+    """``run IMAGES WORKSPACE``: features, calibration, mapping, bundle adjustment."""
+    from .database.features import MATCHERS
+    from .intrinsics.calibrate import METHODS
+    from .reconstruction.mapping import REFINE_CHOICES
+    from .reconstruction.workflow import RunOptions
+
     run = commands.add_parser(
         "run", help="images -> features -> TrifocalCalib -> mapping -> bundle adjustment"
     )
@@ -122,14 +138,19 @@ def build_parser() -> argparse.ArgumentParser:
         "--png", type=Path, metavar="OUT", help="render the model offscreen to this PNG (Open3D)"
     )
 
-    add_evaluate_parser(commands)
-    add_synthetic_parser(commands)
 
+def _add_show_parser(commands: argparse._SubParsersAction) -> None:
+    """``show MODEL``: the Open3D view of a COLMAP model."""
     show = commands.add_parser(
         "show", help="Open3D view of a COLMAP model (points, camera frustums)"
     )
     show.add_argument("model", type=Path, help="COLMAP model folder, e.g. WORKSPACE/sparse/0")
     show.add_argument("--png", type=Path, metavar="OUT", help="render offscreen to this PNG")
+
+
+def _add_demo_parser(commands: argparse._SubParsersAction) -> None:
+    """``demo``: the whole pipeline on a synthetic database with a known camera."""
+    from .intrinsics.calibrate import METHODS
 
     demo = commands.add_parser(
         "demo", help="calibrate a synthetic database with a known camera (no download)"
@@ -137,7 +158,6 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--seed", type=int, default=0)
     demo.add_argument("--method", choices=METHODS, default="msac-opt")
     demo.add_argument("--keep", type=Path, metavar="DIR", help="keep the demo database in DIR")
-    return parser
 
 
 def _configure_logging(verbosity: int) -> None:

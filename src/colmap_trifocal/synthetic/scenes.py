@@ -231,17 +231,65 @@ def make_scene(
     rng = _as_generator(seed)
     params = np.asarray(DEFAULT_INTRINSICS if intrinsics is None else intrinsics, dtype=float)
     K = intrinsics_matrix(params)
+    rotations, translations = place_cameras_around_origin(
+        num_cameras, rng, radius, radius_jitter, cone_deg, min_separation_deg, max_tries
+    )
+    points = _points_visible_in_all_views(
+        K, rotations, translations, num_points, cube_side, width, height, rng, max_tries
+    )
+    observations, outlier_views = _observe(
+        K, rotations, translations, points, noise_px, outlier_ratio, width, height, rng
+    )
+    return SyntheticScene(
+        K=K,
+        intrinsics=params.copy(),
+        rotations=rotations,
+        translations=translations,
+        points=points,
+        observations=observations,
+        outliers=outlier_views >= 0,
+        outlier_views=outlier_views,
+        width=width,
+        height=height,
+    )
 
+
+def place_cameras_around_origin(
+    num_cameras: int,
+    rng: np.random.Generator,
+    radius: float = 6.0,
+    radius_jitter: float = 0.5,
+    cone_deg: float = 5.0,
+    min_separation_deg: float = 10.0,
+    max_tries: int = 100,
+) -> tuple[np.ndarray, np.ndarray]:
+    """World-to-camera (R (m,3,3), t (m,3)) of cameras on a sphere, looking near the origin.
+
+    See :func:`make_scene` for the arguments (world units and degrees).
+    """
     directions = _camera_directions(num_cameras, np.deg2rad(min_separation_deg), rng, max_tries)
     centers = (
         directions
         * rng.uniform(radius - radius_jitter, radius + radius_jitter, num_cameras)[:, None]
     )
-    to_origin = -directions
-    axes = _tilt(to_origin, np.deg2rad(cone_deg), rng)
+    axes = _tilt(-directions, np.deg2rad(cone_deg), rng)
     rotations = look_at_rotations(axes, rng.uniform(0.0, 2.0 * np.pi, num_cameras))
     translations = -np.einsum("mij,mj->mi", rotations, centers)
+    return rotations, translations
 
+
+def _points_visible_in_all_views(
+    K: np.ndarray,
+    rotations: np.ndarray,
+    translations: np.ndarray,
+    num_points: int,
+    cube_side: float,
+    width: int,
+    height: int,
+    rng: np.random.Generator,
+    max_tries: int,
+) -> np.ndarray:
+    """``num_points`` uniform points of the centred cube inside every image (n, 3)."""
     kept: list[np.ndarray] = []
     count = 0
     for _ in range(max_tries):
@@ -258,13 +306,25 @@ def make_scene(
         kept.append(visible)
         count += len(visible)
         if count >= num_points:
-            break
-    else:
-        raise ValueError(
-            f"only {count} of {num_points} points are visible in all {num_cameras} views"
-        )
-    points = np.concatenate(kept)[:num_points]
+            return np.concatenate(kept)[:num_points]
+    raise ValueError(
+        f"only {count} of {num_points} points are visible in all {len(rotations)} views"
+    )
 
+
+def _observe(
+    K: np.ndarray,
+    rotations: np.ndarray,
+    translations: np.ndarray,
+    points: np.ndarray,
+    noise_px: float,
+    outlier_ratio: float,
+    width: int,
+    height: int,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Noisy pixels (m, n, 2) and, per track, the view replaced by an outlier (−1: none)."""
+    num_cameras, num_points = len(rotations), len(points)
     exact, _ = _project(K, rotations, translations, points)
     observations = exact + rng.uniform(-noise_px, noise_px, size=exact.shape)
     outlier_views = np.full(num_points, -1)
@@ -276,18 +336,7 @@ def make_scene(
             [0.0, 0.0], [float(width), float(height)], size=(num_outliers, 2)
         )
         outlier_views[tracks] = views
-    return SyntheticScene(
-        K=K,
-        intrinsics=params.copy(),
-        rotations=rotations,
-        translations=translations,
-        points=points,
-        observations=observations,
-        outliers=outlier_views >= 0,
-        outlier_views=outlier_views,
-        width=width,
-        height=height,
-    )
+    return observations, outlier_views
 
 
 def perturbed_prior(
