@@ -34,7 +34,7 @@ import pytest
 from conftest import synthesize
 
 from colmap_trifocal import cli
-from colmap_trifocal import database as database_module
+from colmap_trifocal.database import snapshot as database_module
 
 PARAMS = [1100.0, 1250.0, 530.0, 370.0]
 PRIOR = "1140,1210,545,360"

@@ -12,8 +12,8 @@ import numpy as np
 import pycolmap
 import pytest
 
-from colmap_trifocal import database as database_module
 from colmap_trifocal.common.errors import CalibrationError
+from colmap_trifocal.database import snapshot as database_module
 from colmap_trifocal.database.cameras import CameraInfo
 from colmap_trifocal.database.snapshot import read_database, write_intrinsics
 

@@ -10,8 +10,8 @@ import pycolmap
 import pytest
 from conftest import synthesize
 
-from colmap_trifocal import visualize
 from colmap_trifocal.common.errors import CalibrationError
+from colmap_trifocal.reconstruction import visualize
 
 try:
     import open3d as o3d
