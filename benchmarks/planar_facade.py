@@ -61,8 +61,7 @@ def main() -> None:
                 seconds = time.perf_counter() - clock
                 error = (result.intrinsics / truth - 1.0) * 100.0
                 determined = "".join(
-                    name if result.observable[name] else "-" * len(name)
-                    for name in PARAMETER_NAMES
+                    name if result.observable[name] else "-" * len(name) for name in PARAMETER_NAMES
                 )
                 mean = float(np.abs(error).mean())
                 cells = " | ".join(f"{e:+.2f}" for e in error)
@@ -72,9 +71,7 @@ def main() -> None:
                     f"{seconds:.0f} |",
                     flush=True,
                 )
-                summary.setdefault((relief, start), []).append(
-                    (result.num_inlier_triplets, mean)
-                )
+                summary.setdefault((relief, start), []).append((result.num_inlier_triplets, mean))
     print("\n| relief | start | median agreeing | min agreeing | mean error % | worst %|")
     print("|---|---|---|---|---|---|")
     for (relief, start), rows in summary.items():
