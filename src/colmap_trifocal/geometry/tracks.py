@@ -46,6 +46,9 @@ CANDIDATES_PER_TRIPLET = 3
 SEQUENCE_MIN_IMAGES = 12
 #: ... when 90 % of its matched pairs are at most this share of the images apart.
 SEQUENCE_MAX_GAP = 1.0 / 3.0
+#: ... or when the match counts of its pairs fall with their distance in id order
+#: (Spearman rank correlation at most this).
+SEQUENCE_CORRELATION = -0.4
 
 
 @dataclass(frozen=True)
@@ -108,27 +111,35 @@ class MatchGraph:
 
 
 def is_sequence(graph: MatchGraph, image_ids: list[int], min_matches: int = 15) -> bool:
-    """Whether the images form a sequence: matched pairs are mostly near in image order.
+    """Whether the images form a sequence: matches fall off with the distance in image order.
 
-    True when there are at least :data:`SEQUENCE_MIN_IMAGES` images and 90 % of the
-    pairs with ``min_matches`` verified matches are at most ``SEQUENCE_MAX_GAP`` of the
-    images apart in id order (what sequential matching, or exhaustive matching of a
-    video or a drive, gives). Image ids follow the file names, as COLMAP's feature
-    extraction assigns them.
+    With at least :data:`SEQUENCE_MIN_IMAGES` images, over the pairs with
+    ``min_matches`` verified matches: True when 90 % of them are at most
+    ``SEQUENCE_MAX_GAP`` of the images apart in id order (sequential matching), or
+    when their match counts fall with that distance (rank correlation at most
+    :data:`SEQUENCE_CORRELATION`: exhaustive matching of a video or a drive, where far
+    frames still share distant points). Image ids follow the file names, as COLMAP's
+    feature extraction assigns them.
     """
     if len(image_ids) < SEQUENCE_MIN_IMAGES:
         return False
     rank = {image: index for index, image in enumerate(sorted(image_ids))}
     neighbours = graph.neighbours()
-    gaps = [
-        abs(rank[a] - rank[b])
+    pairs = [
+        (abs(rank[a] - rank[b]), graph.match_count(a, b))
         for a in rank
         for b in neighbours.get(a, ())
         if b in rank and a < b and graph.match_count(a, b) >= min_matches
     ]
-    if not gaps:
+    if len(pairs) < 3:
         return False
-    return bool(np.percentile(gaps, 90) <= SEQUENCE_MAX_GAP * len(image_ids))
+    gaps, counts = np.array(pairs, dtype=float).T
+    if np.percentile(gaps, 90) <= SEQUENCE_MAX_GAP * len(image_ids):
+        return True
+    gap_rank = np.argsort(np.argsort(gaps))
+    count_rank = np.argsort(np.argsort(counts))
+    correlation = np.corrcoef(gap_rank, count_rank)[0, 1]
+    return bool(correlation <= SEQUENCE_CORRELATION)
 
 
 def pair_motions(
