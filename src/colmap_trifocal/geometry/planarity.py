@@ -87,6 +87,18 @@ def dominant_plane(x: np.ndarray, threshold: float) -> DominantPlane | None:
     H3, _ = cv2.findHomography(x1[first], x3[first], cv2.RANSAC, threshold, maxIters=2000)
     if H3 is None:
         return None
+    # Relief within the threshold tilts a homography fitted to all inliers; refit
+    # both on the tracks closest to the plane (least squares, half the threshold).
+    for _ in range(2):
+        distance2 = np.linalg.norm(_transfer(H2, x1) - x2, axis=1)
+        distance3 = np.linalg.norm(_transfer(H3, x1) - x3, axis=1)
+        close = (distance2 < threshold / 2.0) & (distance3 < threshold / 2.0)
+        if close.sum() < 8:
+            break
+        H2 = cv2.findHomography(x1[close], x2[close], 0)[0]
+        H3 = cv2.findHomography(x1[close], x3[close], 0)[0]
+        if H2 is None or H3 is None:
+            return None
     distance2 = np.linalg.norm(_transfer(H2, x1) - x2, axis=1)
     distance3 = np.linalg.norm(_transfer(H3, x1) - x3, axis=1)
     parallax = np.nan_to_num(np.maximum(distance2, distance3), nan=np.inf)
