@@ -5,7 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from colmap_trifocal.geometry.planarity import dominant_plane, plane_parallax_cameras
+from colmap_trifocal.geometry.planarity import (
+    PLANAR_SHARE,
+    dominant_plane,
+    plane_parallax_cameras,
+)
 from colmap_trifocal.geometry.projective_ba import refine_triplet
 from colmap_trifocal.geometry.tensor_estimation import (
     TensorEstimationOptions,
@@ -76,21 +80,21 @@ def test_planar_triplet_tensor_stays_near_the_true_one() -> None:
     K0 = intrinsics_matrix(scene.intrinsics * 1.03)
     views = (2, 3, 7)
     pixels, _ = normalised_tracks(scene, views, K0)
-    tensor = estimate_triplet_tensor(views, pixels, K0, np.random.default_rng(0))
+    planar = TensorEstimationOptions(planar_share=PLANAR_SHARE)
+    tensor = estimate_triplet_tensor(views, pixels, K0, np.random.default_rng(0), planar)
     assert tensor is not None
     assert tensor_distance(tensor.tensor, scene.true_tensor(views, K0)) < 0.2
 
 
 def test_general_triplets_are_estimated_as_before() -> None:
-    """The planar handling leaves a triplet with depth spread untouched (same tensor)."""
+    """Switching the planar handling on leaves a triplet with depth spread untouched."""
     scene = facade_scene(relief=0.3, seed=2, noise_px=1.0, num_points=800)
     K0 = intrinsics_matrix(scene.intrinsics * 0.97)
     views = (0, 3, 6)
     pixels, _ = normalised_tracks(scene, views, K0)
-    default = estimate_triplet_tensor(views, pixels, K0, np.random.default_rng(5))
-    off = estimate_triplet_tensor(
-        views, pixels, K0, np.random.default_rng(5), TensorEstimationOptions(planar_share=2.0)
-    )
+    planar = TensorEstimationOptions(planar_share=PLANAR_SHARE)
+    default = estimate_triplet_tensor(views, pixels, K0, np.random.default_rng(5), planar)
+    off = estimate_triplet_tensor(views, pixels, K0, np.random.default_rng(5))
     assert default is not None and off is not None
     np.testing.assert_array_equal(default.tensor, off.tensor)
     assert tensor_distance(default.tensor, scene.true_tensor(views, K0)) < 0.05
