@@ -23,7 +23,7 @@ from colmap_trifocal.synthetic.motions import general_motion
 @pytest.fixture(scope="module")
 def turning_drive():
     """30 frames 1 m apart, KITTI camera, a 90° right turn midway."""
-    scene = driving_sequence(num_images=30, turn_deg=90.0, num_points=5000, seed=1)
+    scene = driving_sequence(num_images=30, turn_deg=90.0, num_points=3000, seed=1)
     return scene, scene_contents(scene)
 
 
@@ -80,7 +80,7 @@ def test_sequence_selection_improves_the_calibration(turning_drive) -> None:
     results = {}
     for sequence in (False, True):
         options = CalibrationOptions(
-            prior=prior, seed=0, workers=1, max_triplets=10, sequence=sequence
+            prior=prior, seed=0, workers=1, max_triplets=8, sequence=sequence
         )
         (results[sequence],) = calibrate_contents(contents, options)
     old, new = results[False], results[True]
