@@ -22,6 +22,7 @@ import time
 import numpy as np
 
 from colmap_trifocal import CalibrationOptions, calibrate_contents, calibrate_database
+from colmap_trifocal.common.errors import CalibrationError
 from colmap_trifocal.intrinsics.results import PARAMETER_NAMES
 from colmap_trifocal.synthetic.database import scene_contents
 from colmap_trifocal.synthetic.driving import KITTI_INTRINSICS, driving_sequence
@@ -36,7 +37,12 @@ def row(label: str, start: str, sequence: bool, truth: np.ndarray, run) -> None:
         options = CalibrationOptions(no_prior=True)
     options.sequence, options.workers = sequence, 1
     clock = time.process_time()
-    (result,) = run(options)
+    selection = "information" if sequence else "tracks"
+    try:
+        (result,) = run(options)
+    except CalibrationError as error:
+        print(f"| {label} | {start} | {selection} | error: {error} |||||||", flush=True)
+        return
     seconds = time.process_time() - clock
     error = (result.intrinsics / truth - 1.0) * 100.0
     cells = " | ".join(
@@ -47,7 +53,6 @@ def row(label: str, start: str, sequence: bool, truth: np.ndarray, run) -> None:
         "-" if result.std[n] is None else f"{result.std[n]:.1f}" for n in PARAMETER_NAMES
     )
     gaps = np.array([max(t.image_ids) - min(t.image_ids) for t in result.triplets])
-    selection = "information" if sequence else "tracks"
     print(
         f"| {label} | {start} | {selection} | {result.num_inlier_triplets}/{result.num_triplets} "
         f"| {cells} | {std} | {np.median(gaps):g} ({gaps.min()}–{gaps.max()}) | {seconds:.0f} |",
