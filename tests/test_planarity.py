@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from colmap_trifocal import CalibrationOptions, calibrate_contents
 from colmap_trifocal.geometry.planarity import (
     PLANAR_SHARE,
     dominant_plane,
@@ -21,6 +22,7 @@ from colmap_trifocal.geometry.trifocal import (
     normalize_tensor,
     tensor_from_cameras,
 )
+from colmap_trifocal.synthetic.database import scene_contents
 from colmap_trifocal.synthetic.facade import facade_scene
 
 THRESHOLD_PX = 4.0
@@ -98,3 +100,22 @@ def test_general_triplets_are_estimated_as_before() -> None:
     assert default is not None and off is not None
     np.testing.assert_array_equal(default.tensor, off.tensor)
     assert tensor_distance(default.tensor, scene.true_tensor(views, K0)) < 0.05
+
+
+def test_planar_option_makes_facade_triplets_agree() -> None:
+    """Facade with 1 % relief, ±5 % prior: with the planar handling at least 15 of 20
+    triplets agree (11 without it, measured); the estimate stays within 0.1 %."""
+    scene = facade_scene(relief=0.01, seed=0, noise_px=1.0, num_points=1000)
+    truth = scene.intrinsics
+    prior = truth * (1.0 + 0.05 * np.random.default_rng(99).choice([-1.0, 1.0], 4))
+    options = CalibrationOptions(
+        prior=tuple(prior),
+        seed=0,
+        workers=1,
+        tensor=TensorEstimationOptions(planar_share=PLANAR_SHARE),
+    )
+    (result,) = calibrate_contents(scene_contents(scene), options)
+    assert result.num_triplets == 20
+    assert result.num_inlier_triplets >= 15
+    assert all(result.observable.values())
+    assert np.abs(result.intrinsics / truth - 1.0).mean() < 0.001
