@@ -64,6 +64,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--turns", default="0,90", help="turns of the synthetic drives, degrees")
     parser.add_argument("--seeds", type=int, default=2)
+    parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--starts", default="prior,default")
     parser.add_argument("--kitti", help="COLMAP database of the shared KITTI drive")
     args = parser.parse_args()
@@ -74,7 +75,7 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     starts = args.starts.split(",")
     for turn in map(float, args.turns.split(",")) if args.turns else []:
-        for seed in range(args.seeds):
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
             scene = driving_sequence(turn_deg=turn, seed=seed)
             contents = scene_contents(scene)
             for start in starts:
