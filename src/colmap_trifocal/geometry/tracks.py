@@ -18,7 +18,7 @@ Selection, bounded for large databases (:func:`select_triplets`):
 
 Sequences (video, driving; :func:`is_sequence`): adjacent frames share most
 tracks but barely rotate, and a triplet of them says little about K. There the
-candidates are all triangles among each frame's matched neighbours, and they are
+candidates are all triangles among each frame's (up to 50) matched neighbours, and they are
 ranked and spread by :func:`information_score`, ``sqrt(tracks) · motion``, with
 ``motion`` the smallest of the three pairs' median keypoint displacements
 (:func:`pair_motions`): triplets over wider frame gaps and across turns win, as
@@ -42,6 +42,10 @@ NEIGHBOURS_PER_IMAGE = 10
 #: Exact tracks are computed for this many times ``max_triplets`` best candidates
 #: (by their bound) per batch, plus every image's best candidate.
 CANDIDATES_PER_TRIPLET = 3
+#: Best-matched neighbours of a frame among which sequence triplets are formed (every
+#: triangle of a frame's matched neighbours when it has at most this many; bounds the
+#: candidates of long exhaustively matched videos to ~1200 per frame).
+SEQUENCE_NEIGHBOURS = 50
 #: A view graph is a sequence (:func:`is_sequence`) with at least this many images ...
 SEQUENCE_MIN_IMAGES = 12
 #: ... when 90 % of its matched pairs are at most this share of the images apart.
@@ -176,12 +180,13 @@ def select_sequence_triplets(
 ) -> list[Triplet]:
     """Up to ``max_triplets`` triplets of a sequence, chosen by :func:`information_score`.
 
-    Every triangle among each image's matched neighbours is a candidate; they are
+    Every triangle among each image's ``SEQUENCE_NEIGHBOURS`` best-matched neighbours
+    is a candidate; they are
     ranked by the score of their track bound, exact tracks are computed for the
     ``CANDIDATES_PER_TRIPLET · max_triplets`` best and every image's best, and the
     spread (:func:`spread_triplets`) uses the score of the exact track counts.
     """
-    ids, bounds = candidate_triplets(graph, image_ids, None)
+    ids, bounds = candidate_triplets(graph, image_ids, SEQUENCE_NEIGHBOURS)
     keep = bounds >= min_tracks
     ids, bounds = [t for t, k in zip(ids, keep, strict=True) if k], bounds[keep]
     scores = np.array([information_score(t, b, motions) for t, b in zip(ids, bounds, strict=True)])
