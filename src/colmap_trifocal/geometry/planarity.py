@@ -7,7 +7,9 @@ valley far from any calibrated tensor (measured on a synthetic facade with 1 %
 relief: final costs 5–70 % above the cost reached from the true cameras, tensor
 0.6–1.1 away from the true one in unit Frobenius norm).
 
-Plane + parallax gives a start near the optimum. With the homographies
+Plane + parallax gives another start (with a dominant plane and a few discrete
+relief layers, such as a door, its epipoles are poorly determined, so it is one
+start among several, not a replacement). With the homographies
 ``H2, H3`` of the dominant plane from view 1 to views 2 and 3, every track obeys
 ``x_j ~ H_j x1 + ρ e_j`` (``ρ``: the track's projective depth off the plane,
 ``e_j``: the epipole of view 1 in view j), so the cameras ``P2 = [H2 | e2]``,
@@ -120,8 +122,6 @@ def _epipole(
     pairs = np.argpartition(rng.random((EPIPOLE_SAMPLES, n)), 2, axis=1)[:, :2]
     candidates = np.cross(lines[pairs[:, 0]], lines[pairs[:, 1]])
     candidates /= np.linalg.norm(candidates, axis=1, keepdims=True) + 1e-300
-    # Distance of x_j to the line through H x1 and the candidate e: |l_i · e| / |(H x1 - x_j)|
-    # scaled back to a point-line distance with the line through H x1 and e.
     errors = _line_distances(x1, xj, H, candidates)
     threshold2 = threshold**2
     scores = np.minimum(errors**2, threshold2).sum(axis=1)
