@@ -21,6 +21,10 @@
    (:mod:`.projective_ba`); inliers are re-selected with the refined cameras and
    refined once more.
 
+Optionally (``TensorEstimationOptions.planar_share``, off by default), a triplet
+whose tracks mostly fit one plane is refined from several starts instead
+(:mod:`.planarity`).
+
 The returned tensor is built from the refined cameras, so it is a geometrically
 valid trifocal tensor, and it comes with the covariance of those cameras.
 """
@@ -32,11 +36,15 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from ..common.log import logger
+from .planarity import dominant_plane, plane_parallax_cameras
 from .projective_ba import ProjectiveBAResult, initial_points, refine_triplet
 from .trifocal import cameras_from_tensor, linear_tensor, normalize_tensor, tensor_from_cameras
 
 MINIMAL_SAMPLE = 7
 MIN_TRACKS_TO_REFINE = 12
+#: Relative cost decrease below which the bundle adjustment stops (general triplets).
+BA_TOLERANCE = 1e-4
 
 
 @dataclass
@@ -57,6 +65,18 @@ class TensorEstimationOptions:
     #: Tracks used by the bundle adjustment (a random subset of the inliers).
     #: The covariance passed on accounts for how many were used.
     max_refined_tracks: int = 500
+    #: A triplet is planar-dominant when this share of its tracks fits one plane's
+    #: homographies (:mod:`.planarity`; e.g. ``PLANAR_SHARE`` = 0.5); it is then
+    #: refined from several starts (the best MSAC hypothesis, plane + parallax, the
+    #: calibrated hypothesis), the start with the lowest MSAC score after refinement
+    #: wins and is refined on to convergence. Off by default (above 1): measured
+    #: (docs/planar_and_sequences.md), it makes more facade triplets agree (1 %
+    #: relief: 11–15 -> 15–17 of 20) but does not make the estimate more accurate
+    #: there, costs Herz-Jesus-P8 accuracy (seed 0: 0.128 -> 0.161 %) and doubles
+    #: the tensor time.
+    planar_share: float = 2.0
+    planar_ba_iterations: int = 200
+    planar_ba_tolerance: float = 1e-9
 
 
 @dataclass
@@ -156,42 +176,64 @@ def estimate_triplet_tensor(
     if calibrated is not None:
         P2h = np.concatenate([P2h, calibrated[0][None]])
         P3h = np.concatenate([P3h, calibrated[1][None]])
-    errors = transfer_errors(x[:, scored], P2h, P3h, pixel_scale)
-    best = int(np.argmin(np.minimum(errors, threshold2).sum(axis=1)))
-    inliers = transfer_errors(x, P2h[best], P3h[best], pixel_scale) < threshold2
-    # Refinement can grow a small initial consensus (a prior far off, heavy noise),
-    # so min_inliers is only checked after it; the BA needs a few tracks to start.
-    if inliers.sum() < MIN_TRACKS_TO_REFINE:
-        return None
-    P2, P3 = P2h[best], P3h[best]
-    points = initial_points(x, P2, P3)
-    # One random order for all rounds: later rounds refine mostly the same tracks,
-    # warm-started from their refined points.
-    order = rng.permutation(n)
-    result: ProjectiveBAResult | None = None
-    for _ in range(options.refinement_rounds):
-        used = np.sort(order[inliers[order]][: options.max_refined_tracks])
-        result = refine_triplet(
-            x[:, used], P2, P3, pixel_scale, points[used], options.max_ba_iterations
+    plane = (
+        dominant_plane(x, options.inlier_threshold_px / pixel_scale.mean())
+        if options.planar_share <= 1.0
+        else None
+    )
+    planar = plane is not None and plane.share >= options.planar_share
+    starts: list[tuple[np.ndarray, np.ndarray]] = []
+    if planar:
+        assert plane is not None
+        parallax = plane_parallax_cameras(
+            x, plane, options.inlier_threshold_px / pixel_scale.mean(), rng
         )
-        if not (np.all(np.isfinite(result.camera_covariance)) and np.isfinite(result.sigma)):
-            return None
-        P2, P3 = result.P2, result.P3
-        # Warm start of the next round: refined points where known, closed form elsewhere.
-        points = initial_points(x, P2, P3)
-        points[used] = result.points
-        new_inliers = transfer_errors(x, P2, P3, pixel_scale) < threshold2
-        if new_inliers.sum() < MIN_TRACKS_TO_REFINE:
-            return None
-        # Converged when at most 0.5 % of the tracks changed side: on real data a few
-        # borderline tracks flip at every round, so exact equality would never stop.
-        converged = np.count_nonzero(new_inliers != inliers) <= max(2, 0.005 * n)
-        inliers = new_inliers
-        if converged:
-            break
-    assert result is not None
+        if parallax is not None:
+            starts.append(parallax)
+    errors = transfer_errors(x[:, scored], P2h, P3h, pixel_scale)
+    scores = np.minimum(errors, threshold2).sum(axis=1)
+    best = int(np.argmin(scores))
+    starts.insert(0, (P2h[best], P3h[best]))
+    if planar and calibrated is not None:
+        starts.append(calibrated)
+    order = rng.permutation(n)
+    refined = [
+        _refine(x, P2, P3, pixel_scale, order, threshold2, options, BA_TOLERANCE)
+        for P2, P3 in starts
+    ]
+    candidates = [r for r in refined if r is not None]
+    if not candidates:
+        return None
+    result, inliers, _ = min(candidates, key=lambda c: c[2])
+    if planar and options.planar_ba_tolerance < BA_TOLERANCE:
+        # On a plane with little relief the BA crawls along a flat valley (relative
+        # decreases below 1e-4 long before the minimum) and each start can end in its
+        # own local minimum: the best start (lowest MSAC score after the usual
+        # refinement) is refined on to convergence.
+        final = _refine(
+            x,
+            result.P2,
+            result.P3,
+            pixel_scale,
+            order,
+            threshold2,
+            options,
+            options.planar_ba_tolerance,
+            options.planar_ba_iterations,
+        )
+        if final is not None:
+            result, inliers, _ = final
     if inliers.sum() < options.min_inliers:
         return None
+    logger.debug(
+        "triplet %s: %s%d start(s), %d of %d inliers",
+        image_ids,
+        f"planar ({plane.share:.0%} on one plane), " if planar and plane is not None else "",
+        len(starts),
+        inliers.sum(),
+        n,
+    )
+    P2, P3 = result.P2, result.P3
     return TripletTensor(
         image_ids=image_ids,
         tensor=normalize_tensor(tensor_from_cameras(P2, P3)),
@@ -203,6 +245,61 @@ def estimate_triplet_tensor(
         sigma_px=result.sigma,
         inliers=inliers,
     )
+
+
+def _refine(
+    x: np.ndarray,
+    P2: np.ndarray,
+    P3: np.ndarray,
+    pixel_scale: np.ndarray,
+    order: np.ndarray,
+    threshold2: float,
+    options: TensorEstimationOptions,
+    tolerance: float,
+    iterations: int | None = None,
+) -> tuple[ProjectiveBAResult, np.ndarray, float] | None:
+    """Bundle adjustment and inlier re-selection from cameras P2, P3 (see the module steps).
+
+    ``order``: one random order of the tracks for all rounds (later rounds refine
+    mostly the same tracks, warm-started from their refined points). Returns the
+    last BA result, the inliers (n,) bool and the MSAC score over all tracks
+    (squared pixel errors truncated at ``threshold2``), or None when the BA fails
+    or too few tracks agree. ``tolerance`` and ``iterations`` (default
+    ``options.max_ba_iterations``) are the BA's stopping rule.
+    """
+    iterations = options.max_ba_iterations if iterations is None else iterations
+    n = x.shape[1]
+    inliers = transfer_errors(x, P2, P3, pixel_scale) < threshold2
+    # Refinement can grow a small initial consensus (a prior far off, heavy noise),
+    # so min_inliers is only checked after it; the BA needs a few tracks to start.
+    if inliers.sum() < MIN_TRACKS_TO_REFINE:
+        return None
+    points = initial_points(x, P2, P3)
+    result: ProjectiveBAResult | None = None
+    errors = np.zeros(n)
+    for _ in range(options.refinement_rounds):
+        used = np.sort(order[inliers[order]][: options.max_refined_tracks])
+        result = refine_triplet(
+            x[:, used], P2, P3, pixel_scale, points[used], iterations, tolerance
+        )
+        if not (np.all(np.isfinite(result.camera_covariance)) and np.isfinite(result.sigma)):
+            return None
+        P2, P3 = result.P2, result.P3
+        # Warm start of the next round: refined points where known, closed form elsewhere.
+        points = initial_points(x, P2, P3)
+        points[used] = result.points
+        errors = transfer_errors(x, P2, P3, pixel_scale)
+        new_inliers = errors < threshold2
+        if new_inliers.sum() < MIN_TRACKS_TO_REFINE:
+            return None
+        # Converged when at most 0.5 % of the tracks changed side: on real data a few
+        # borderline tracks flip at every round, so exact equality would never stop.
+        converged = np.count_nonzero(new_inliers != inliers) <= max(2, 0.005 * n)
+        inliers = new_inliers
+        if converged:
+            break
+    assert result is not None
+    return result, inliers, float(np.minimum(errors, threshold2).sum())
 
 
 def calibrated_hypothesis(x: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray] | None:

@@ -16,6 +16,14 @@ Selection, bounded for large databases (:func:`select_triplets`):
    of their bound, while fewer than that many reach ``min_tracks``;
 3. greedy spread over the view graph (:func:`spread_triplets`).
 
+Sequences (video, driving; :func:`is_sequence`): adjacent frames share most
+tracks but barely rotate, and a triplet of them says little about K. There the
+candidates are all triangles among each frame's (up to 50) matched neighbours, and they are
+ranked and spread by :func:`information_score`, ``sqrt(tracks) · motion``, with
+``motion`` the smallest of the three pairs' median keypoint displacements
+(:func:`pair_motions`): triplets over wider frame gaps and across turns win, as
+long as they keep enough tracks.
+
 Memory: keypoint lookup tables (int32, one per ordered pair) are built only for
 the pairs of evaluated candidates, and only those candidates' tracks are kept.
 """
@@ -34,6 +42,17 @@ NEIGHBOURS_PER_IMAGE = 10
 #: Exact tracks are computed for this many times ``max_triplets`` best candidates
 #: (by their bound) per batch, plus every image's best candidate.
 CANDIDATES_PER_TRIPLET = 3
+#: Best-matched neighbours of a frame among which sequence triplets are formed (every
+#: triangle of a frame's matched neighbours when it has at most this many; bounds the
+#: candidates of long exhaustively matched videos to ~1200 per frame).
+SEQUENCE_NEIGHBOURS = 50
+#: A view graph is a sequence (:func:`is_sequence`) with at least this many images ...
+SEQUENCE_MIN_IMAGES = 12
+#: ... when 90 % of its matched pairs are at most this share of the images apart.
+SEQUENCE_MAX_GAP = 1.0 / 3.0
+#: ... or when the match counts of its pairs fall with their distance in id order
+#: (Spearman rank correlation at most this).
+SEQUENCE_CORRELATION = -0.4
 
 
 @dataclass(frozen=True)
@@ -93,6 +112,101 @@ class MatchGraph:
         return np.column_stack([seeds[consistent], in_j[consistent], in_k[consistent]]).astype(
             np.int64
         )
+
+
+def is_sequence(graph: MatchGraph, image_ids: list[int], min_matches: int = 15) -> bool:
+    """Whether the images form a sequence: matches fall off with the distance in image order.
+
+    With at least :data:`SEQUENCE_MIN_IMAGES` images, over the pairs with
+    ``min_matches`` verified matches: True when 90 % of them are at most
+    ``SEQUENCE_MAX_GAP`` of the images apart in id order (sequential matching), or
+    when their match counts fall with that distance (rank correlation at most
+    :data:`SEQUENCE_CORRELATION`: exhaustive matching of a video or a drive, where far
+    frames still share distant points). Image ids follow the file names, as COLMAP's
+    feature extraction assigns them.
+    """
+    if len(image_ids) < SEQUENCE_MIN_IMAGES:
+        return False
+    rank = {image: index for index, image in enumerate(sorted(image_ids))}
+    neighbours = graph.neighbours()
+    pairs = [
+        (abs(rank[a] - rank[b]), graph.match_count(a, b))
+        for a in rank
+        for b in neighbours.get(a, ())
+        if b in rank and a < b and graph.match_count(a, b) >= min_matches
+    ]
+    if len(pairs) < 3:
+        return False
+    gaps, counts = np.array(pairs, dtype=float).T
+    if np.percentile(gaps, 90) <= SEQUENCE_MAX_GAP * len(image_ids):
+        return True
+    gap_rank = np.argsort(np.argsort(gaps))
+    count_rank = np.argsort(np.argsort(counts))
+    correlation = np.corrcoef(gap_rank, count_rank)[0, 1]
+    return bool(correlation <= SEQUENCE_CORRELATION)
+
+
+def pair_motions(
+    matches: dict[Pair, np.ndarray], keypoints: dict[int, np.ndarray]
+) -> dict[Pair, float]:
+    """Median displacement (pixels) of the verified matches of each pair.
+
+    A proxy for how much the view turned or moved sideways between the two images:
+    zero for copies of one image, growing with rotation and with parallax.
+    """
+    motions = {}
+    for (a, b), m in matches.items():
+        if len(m):
+            flow = keypoints[b][m[:, 1], :2] - keypoints[a][m[:, 0], :2]
+            motions[(a, b)] = float(np.median(np.linalg.norm(flow, axis=1)))
+    return motions
+
+
+def information_score(
+    triple: tuple[int, int, int], tracks: int, motions: dict[Pair, float]
+) -> float:
+    """``sqrt(tracks) · min(motion of the three pairs)``: many tracks, and all views apart."""
+    i, j, k = triple
+    motion = min(motions.get(p, 0.0) for p in ((i, j), (i, k), (j, k)))
+    return float(np.sqrt(tracks) * motion)
+
+
+def select_sequence_triplets(
+    graph: MatchGraph,
+    image_ids: list[int],
+    motions: dict[Pair, float],
+    min_tracks: int = 40,
+    max_triplets: int = 100,
+) -> list[Triplet]:
+    """Up to ``max_triplets`` triplets of a sequence, chosen by :func:`information_score`.
+
+    Every triangle among each image's ``SEQUENCE_NEIGHBOURS`` best-matched neighbours
+    is a candidate; they are
+    ranked by the score of their track bound, exact tracks are computed for the
+    ``CANDIDATES_PER_TRIPLET · max_triplets`` best and every image's best, and the
+    spread (:func:`spread_triplets`) uses the score of the exact track counts.
+    """
+    ids, bounds = candidate_triplets(graph, image_ids, SEQUENCE_NEIGHBOURS)
+    keep = bounds >= min_tracks
+    ids, bounds = [t for t, k in zip(ids, keep, strict=True) if k], bounds[keep]
+    scores = np.array([information_score(t, b, motions) for t, b in zip(ids, bounds, strict=True)])
+    order = np.argsort(-scores, kind="stable")
+    best_of_image: dict[int, int] = {}
+    for index in order:
+        for image in ids[index]:
+            best_of_image.setdefault(image, int(index))
+    batch = CANDIDATES_PER_TRIPLET * max_triplets
+    chosen = sorted(set(order[:batch].tolist()) | set(best_of_image.values()))
+    evaluated = []
+    for index in chosen:
+        indices = graph.tracks(*ids[index])
+        if len(indices) >= min_tracks:
+            evaluated.append(Triplet(ids[index], indices))
+    weights = np.array(
+        [information_score(t.image_ids, len(t.keypoint_indices), motions) for t in evaluated]
+    )
+    ranked = np.argsort(-weights, kind="stable")
+    return spread_triplets([evaluated[i] for i in ranked], max_triplets, list(weights[ranked]))
 
 
 def candidate_triplets(
@@ -172,8 +286,12 @@ def select_triplets(
     return spread_triplets(evaluated, max_triplets)
 
 
-def spread_triplets(candidates: list[Triplet], count: int) -> list[Triplet]:
+def spread_triplets(
+    candidates: list[Triplet], count: int, weights: list[float] | None = None
+) -> list[Triplet]:
     """Greedily pick ``count`` triplets, each maximising ``tracks / (1 + uses)``.
+
+    ``weights`` (one per candidate) replace the track counts when given.
 
     ``uses`` is how often the triplet's three images already appear among the
     picked ones. Ranking by tracks alone piles the triplets onto a few images
@@ -186,7 +304,9 @@ def spread_triplets(candidates: list[Triplet], count: int) -> list[Triplet]:
     images = sorted({i for t in candidates for i in t.image_ids})
     column = {image: index for index, image in enumerate(images)}
     members = np.array([[column[i] for i in t.image_ids] for t in candidates])
-    tracks = np.array([len(t.keypoint_indices) for t in candidates], dtype=float)
+    tracks = np.array(
+        [len(t.keypoint_indices) for t in candidates] if weights is None else weights, dtype=float
+    )
     uses = np.zeros(len(images))
     available = np.ones(len(candidates), dtype=bool)
     chosen = []

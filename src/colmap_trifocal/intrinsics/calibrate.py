@@ -27,7 +27,14 @@ from ..geometry.tensor_estimation import (
     TripletTensor,
     estimate_triplet_tensor,
 )
-from ..geometry.tracks import MatchGraph, Triplet, select_triplets
+from ..geometry.tracks import (
+    MatchGraph,
+    Triplet,
+    is_sequence,
+    pair_motions,
+    select_sequence_triplets,
+    select_triplets,
+)
 from ..geometry.trifocal import intrinsics_matrix
 from .focal_search import search_focal
 from .fundamental import calibrate_from_fundamentals
@@ -71,6 +78,10 @@ class CalibrationOptions:
     #: ``benchmarks/triplet_sampling.py``.
     max_triplets: int | None = 20
     min_tracks: int = 40
+    #: Choose triplets for a sequence (video, driving): over wider frame gaps and
+    #: across turns, by :func:`.tracks.information_score` rather than track count.
+    #: None: when the view graph is one (:func:`.tracks.is_sequence`).
+    sequence: bool | None = None
     tau: float = MSAC_TAU
     tensor: TensorEstimationOptions = field(default_factory=TensorEstimationOptions)
     write: bool = False
@@ -277,7 +288,17 @@ def _prepare_tensors(
     clock = time.perf_counter()
     camera = data.camera
     graph = MatchGraph(data.matches, {i: len(k) for i, k in data.keypoints.items()})
-    triplets = select_triplets(graph, image_ids, options.min_tracks, options.max_triplets)
+    sequence = options.sequence
+    if sequence is None:
+        sequence = is_sequence(graph, image_ids)
+    if sequence:
+        logger.info("camera %d: a sequence: triplets over wide gaps and turns", camera.camera_id)
+        motions = pair_motions(data.matches, data.keypoints)
+        triplets = select_sequence_triplets(
+            graph, image_ids, motions, options.min_tracks, options.max_triplets or 100
+        )
+    else:
+        triplets = select_triplets(graph, image_ids, options.min_tracks, options.max_triplets)
     if not triplets:
         raise CalibrationError(
             f"camera {camera.camera_id}: no image triplet with at least {options.min_tracks} "
