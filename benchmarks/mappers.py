@@ -15,7 +15,8 @@ camera per image at f = 1.2 · max(w, h), centred (built once, cached in ``--cac
 K error: mean relative error of (fx, fy, cx, cy) against ``gt_dense_cameras``, in %,
 averaged over the registered images' cameras (the plain runs keep one camera per
 image). Time: wall-clock seconds of mapping (plain) or of calibrate + mapping +
-refine (run; feature extraction and matching are shared and not counted).
+refine (run, with the three stages; feature extraction and matching are shared and
+not counted).
 
     python benchmarks/mappers.py [--scenes fountain-P11,Herz-Jesus-P8] [--seed 0]
 """
@@ -52,7 +53,7 @@ def k_error(reconstruction: pycolmap.Reconstruction, truth: np.ndarray) -> float
 
 def plain(
     mapper: str, database: Path, work: Path, seed: int
-) -> tuple[pycolmap.Reconstruction, float]:
+) -> tuple[pycolmap.Reconstruction, float, str]:
     """pycolmap's own mapper with default options on a copy of the database."""
     copy = work / f"plain_{mapper}.db"
     shutil.copyfile(database, copy)
@@ -73,12 +74,12 @@ def plain(
             options.extract_colors = False
             models = pycolmap.incremental_mapping(copy, output, output, options)
     seconds = time.perf_counter() - start
-    return max(models.values(), key=lambda r: r.num_reg_images()), seconds
+    return max(models.values(), key=lambda r: r.num_reg_images()), seconds, "mapping"
 
 
 def ours(
     mapper: str, database: Path, work: Path, seed: int
-) -> tuple[pycolmap.Reconstruction, float]:
+) -> tuple[pycolmap.Reconstruction, float, str]:
     """``colmap-trifocal run --database DB --mapper MAPPER``."""
     workspace = work / f"run_{mapper}"
     options = RunOptions(database=database, mapper=mapper, seed=seed)
@@ -86,7 +87,8 @@ def ours(
     with silenced_stderr():
         report = run_pipeline(None, workspace, options)
     seconds = time.perf_counter() - start - report["seconds"]["features"]  # the copy
-    return pycolmap.Reconstruction(workspace / "sparse" / "0"), seconds
+    stages = " + ".join(f"{report['seconds'][k]:.0f}" for k in ("calibrate", "mapping", "refine"))
+    return pycolmap.Reconstruction(workspace / "sparse" / "0"), seconds, stages
 
 
 def main() -> None:
@@ -98,8 +100,8 @@ def main() -> None:
     pycolmap.logging.minloglevel = 2
     args.cache.mkdir(exist_ok=True)
     header = "scene | mapper | TrifocalCalib | registered | K error % | fx, fy, cx, cy | seconds"
-    print(f"| {header} |")
-    print("|---|---|---|---|---|---|---|")
+    print(f"| {header} | stages |")
+    print("|---|---|---|---|---|---|---|---|")
     for scene in args.scenes.split(","):
         folder = default_datasets_root(ROOT) / "strecha" / scene
         database = args.cache / f"{scene}_colmap_default_1600.db"
@@ -117,13 +119,13 @@ def main() -> None:
         for mapper in ("incremental", "global"):
             for label, function in (("no", plain), ("yes", ours)):
                 with tempfile.TemporaryDirectory() as tmp:
-                    model, seconds = function(mapper, database, Path(tmp), args.seed)
+                    model, seconds, stages = function(mapper, database, Path(tmp), args.seed)
                     ids = {i.camera_id for i in model.images.values() if i.has_pose}
                     mean = np.mean([camera_intrinsics(model.cameras[c]) for c in ids], axis=0)
                     print(
                         f"| {scene} | {mapper} | {label} | {model.num_reg_images()}/{num_images} "
                         f"| {k_error(model, truth):.2f} | {', '.join(f'{v:.1f}' for v in mean)} "
-                        f"| {seconds:.1f} |",
+                        f"| {seconds:.1f} | {stages} |",
                         flush=True,
                     )
 
