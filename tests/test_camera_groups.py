@@ -375,3 +375,5 @@ def test_calibrate_into_a_copy_of_a_model(tmp_path: Path, capsys: pytest.Capture
     assert "--output must be a new or empty folder" in capsys.readouterr().err
     assert main(["calibrate", str(path), "--model", str(model)]) == 2
     assert "error: --model and --output go together" in capsys.readouterr().err
+    assert main(["calibrate", str(path), "--refine-distortion"]) == 2
+    assert "error: --refine and --refine-distortion need --model" in capsys.readouterr().err

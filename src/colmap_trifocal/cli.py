@@ -125,7 +125,6 @@ def _add_calibrate_parser(commands: argparse._SubParsersAction) -> None:
     calibrate.add_argument(
         "--refine",
         choices=REFINE_CHOICES,
-        default="ba",
         help="with --model: bundle adjustment of focal lengths and principal points (default ba)",
     )
     calibrate.add_argument(
@@ -265,6 +264,10 @@ def _run_calibrate(args: argparse.Namespace) -> int:
         raise CalibrationError("--max-triplets must be at least 1")
     if (args.model is None) != (args.output is None):
         raise CalibrationError("--model and --output go together")
+    if args.model is None and (args.refine is not None or args.refine_distortion):
+        raise CalibrationError("--refine and --refine-distortion need --model and --output")
+    if args.refine_distortion and args.refine == "none":
+        raise CalibrationError("--refine-distortion needs --refine ba")
     if args.model is not None:
         from .reconstruction.into_model import check_output_folder, read_model
 
@@ -276,13 +279,13 @@ def _run_calibrate(args: argparse.Namespace) -> int:
         check_writable(args.database)
     check_options(options)
     contents = read_database(args.database)
-    results, skipped = calibrate_groups(contents, options, (options.method,))
-    results_list = results[options.method]
+    by_method, skipped = calibrate_groups(contents, options, (options.method,))
+    results = by_method[options.method]
     print(
         f"{'camera':>6} {'model':<14} {'method':<11} {'fx':>10} {'fy':>10} {'cx':>10} "
         f"{'cy':>10} {'triplets':>9} {'time':>7} {'ids':>4}"
     )
-    for r in results_list:
+    for r in results:
         print(
             f"{r.camera_id:>6} {r.model:<14} {r.method:<11} {r.fx:>10.2f} {r.fy:>10.2f} "
             f"{r.cx:>10.2f} {r.cy:>10.2f} {r.num_inlier_triplets:>4}/{r.num_triplets:<4} "
@@ -300,13 +303,13 @@ def _run_calibrate(args: argparse.Namespace) -> int:
         update = calibrate_model(
             args.model,
             args.output,
-            updated_cameras(results_list),
-            args.refine,
+            updated_cameras(results),
+            args.refine or "ba",
             args.refine_distortion,
         )
         print(update.describe())
     if args.json is not None:
-        entries = [r.to_json() for r in results_list] + [g.to_json() for g in skipped]
+        entries = [r.to_json() for r in results] + [g.to_json() for g in skipped]
         if update is not None:
             for entry in entries:
                 entry["model"] = update.to_json()
@@ -314,7 +317,6 @@ def _run_calibrate(args: argparse.Namespace) -> int:
             write_text_atomically(args.json, json.dumps(entries, indent=2) + "\n")
         except OSError as exc:
             raise CalibrationError(f"cannot write {args.json}: {exc.strerror or exc}") from None
-    results = results_list
     if args.write:
         written = write_calibrations(args.database, results)
         if written:
