@@ -17,7 +17,7 @@ from conftest import synthesize
 
 from colmap_trifocal import CalibrationError
 from colmap_trifocal.cli import main
-from colmap_trifocal.database.camera_groups import group_cameras
+from colmap_trifocal.database.camera_groups import format_ids, group_cameras
 from colmap_trifocal.database.cameras import CameraInfo
 from colmap_trifocal.database.shared_cameras import merge_group_cameras
 from colmap_trifocal.database.snapshot import read_database
@@ -96,6 +96,12 @@ def test_all_groups_everything_of_one_size_and_refuses_mixed_sizes() -> None:
         group_cameras(cameras, {10: 1, 11: 2, 12: 3}, "all")
     with pytest.raises(CalibrationError, match="unknown grouping"):
         group_cameras(cameras, {10: 1}, "physical")
+
+
+def test_format_ids() -> None:
+    assert format_ids((1, 2, 3, 7)) == "1-3, 7"
+    assert format_ids([5]) == "5"
+    assert format_ids([1, 3, 4, 5, 9, 10]) == "1, 3-5, 9-10"
 
 
 # --------------------------------------------------------------------------- calibration
@@ -207,6 +213,7 @@ def test_cli_reports_skipped_group_in_json_and_on_stderr(
     assert code == 0
     assert "warning: camera 8 skipped: 1 image" in captured.err
     assert "wrote 7 camera(s)" in captured.out
+    assert "shared by camera ids 1-7" in captured.out
     calibrated, skipped = json.loads(out.read_text())
     assert calibrated["camera_ids"] == [1, 2, 3, 4, 5, 6, 7]
     assert calibrated["start_source"] == "--prior"

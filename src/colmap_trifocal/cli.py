@@ -238,6 +238,7 @@ def _check_output(path: Path, option: str) -> None:
 
 
 def _run_calibrate(args: argparse.Namespace) -> int:
+    from .database.camera_groups import format_ids
     from .database.snapshot import check_writable, read_database
     from .intrinsics.calibrate import (
         CalibrationOptions,
@@ -291,6 +292,8 @@ def _run_calibrate(args: argparse.Namespace) -> int:
             f"{r.cx:>10.2f} {r.cy:>10.2f} {r.num_inlier_triplets:>4}/{r.num_triplets:<4} "
             f"{r.seconds:>6.1f}s {len(r.camera_ids):>4}"
         )
+        if len(r.camera_ids) > 1:
+            print(f"{'':>6} shared by camera ids {format_ids(r.camera_ids)}")
         warning = r.warning()
         if warning is not None:
             print(f"warning: {warning}", file=sys.stderr)

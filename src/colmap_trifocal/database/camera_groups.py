@@ -58,11 +58,11 @@ class CameraGroup:
         """``camera 3`` or ``cameras 1-11 (11 ids)``-style name for messages."""
         if len(self.camera_ids) == 1:
             return f"camera {self.camera_id}"
-        return f"camera {self.camera_id} (group of cameras {_ranges(self.camera_ids)})"
+        return f"camera {self.camera_id} (group of cameras {format_ids(self.camera_ids)})"
 
 
-def _ranges(ids: tuple[int, ...]) -> str:
-    """``1-3, 7`` for (1, 2, 3, 7)."""
+def format_ids(ids: tuple[int, ...] | list[int]) -> str:
+    """``1-3, 7`` for (1, 2, 3, 7) (sorted ids)."""
     parts: list[str] = []
     start = previous = ids[0]
     for i in (*ids[1:], None):
