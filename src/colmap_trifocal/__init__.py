@@ -25,9 +25,12 @@ if TYPE_CHECKING:
         METHODS,
         CalibrationOptions,
         CameraCalibration,
+        GroupCalibration,
+        SkippedGroup,
         calibrate_contents,
         calibrate_contents_methods,
         calibrate_database,
+        calibrate_groups,
     )
 
 #: Loaded on first use (PEP 562), so that ``import colmap_trifocal.cli`` is quick and the
@@ -37,9 +40,12 @@ _PIPELINE_EXPORTS = frozenset(
         "METHODS",
         "CalibrationOptions",
         "CameraCalibration",
+        "GroupCalibration",
+        "SkippedGroup",
         "calibrate_contents",
         "calibrate_contents_methods",
         "calibrate_database",
+        "calibrate_groups",
     }
 )
 
@@ -57,8 +63,11 @@ __all__ = [
     "CalibrationError",
     "CalibrationOptions",
     "CameraCalibration",
+    "GroupCalibration",
+    "SkippedGroup",
     "__version__",
     "calibrate_contents",
     "calibrate_contents_methods",
     "calibrate_database",
+    "calibrate_groups",
 ]

@@ -51,12 +51,23 @@ def build_parser() -> argparse.ArgumentParser:
     add_synthetic_parser(commands)
     _add_show_parser(commands)
     _add_demo_parser(commands)
+    for subparser in commands.choices.values():  # also accepted after the subcommand
+        subparser.add_argument(
+            "-v",
+            "--verbose",
+            action="count",
+            default=0,
+            dest="verbose_after",
+            help="-v info, -vv debug",
+        )
     return parser
 
 
 def _add_calibrate_parser(commands: argparse._SubParsersAction) -> None:
     """``calibrate DATABASE``: the contract in DESIGN.md."""
+    from .database.camera_groups import GROUPINGS
     from .intrinsics.calibrate import METHODS, CalibrationOptions
+    from .reconstruction.mapping import REFINE_CHOICES
 
     calibrate = commands.add_parser(
         "calibrate", help="estimate the intrinsics of the cameras of a COLMAP database"
@@ -74,7 +85,14 @@ def _add_calibrate_parser(commands: argparse._SubParsersAction) -> None:
         action="append",
         dest="camera_ids",
         metavar="ID",
-        help="calibrate only this camera (repeatable)",
+        help="calibrate only the group of this camera (repeatable)",
+    )
+    calibrate.add_argument(
+        "--group",
+        choices=GROUPINGS,
+        default="auto",
+        help="camera ids sharing intrinsics: auto (same model, size and stored parameters; "
+        "default), camera (each camera id alone), all (every image one camera)",
     )
     calibrate.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     calibrate.add_argument("--json", type=Path, metavar="OUT", help="write the results as JSON")
@@ -95,13 +113,33 @@ def _add_calibrate_parser(commands: argparse._SubParsersAction) -> None:
         help="start the tensors from the prior's focal length instead of searching it",
     )
     calibrate.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    calibrate.add_argument(
+        "--model",
+        type=Path,
+        metavar="DIR",
+        help="existing COLMAP model of this database: write the estimate into a copy (--output)",
+    )
+    calibrate.add_argument(
+        "--output", type=Path, metavar="DIR", help="new folder for the model written with --model"
+    )
+    calibrate.add_argument(
+        "--refine",
+        choices=REFINE_CHOICES,
+        help="with --model: bundle adjustment of focal lengths and principal points (default ba)",
+    )
+    calibrate.add_argument(
+        "--refine-distortion",
+        action="store_true",
+        help="with --model --refine ba: also refine the distortion parameters",
+    )
 
 
 def _add_run_parser(commands: argparse._SubParsersAction) -> None:
     """``run IMAGES WORKSPACE``: features, calibration, mapping, bundle adjustment."""
+    from .database.camera_groups import GROUPINGS
     from .database.features import MATCHERS
     from .intrinsics.calibrate import METHODS
-    from .reconstruction.mapping import REFINE_CHOICES
+    from .reconstruction.mapping import MAPPERS, REFINE_CHOICES
     from .reconstruction.workflow import RunOptions
 
     run = commands.add_parser(
@@ -118,7 +156,16 @@ def _add_run_parser(commands: argparse._SubParsersAction) -> None:
     run.add_argument(
         "--camera-model",
         default=RunOptions.camera_model,
-        help="COLMAP model of the new camera (default PINHOLE)",
+        help="COLMAP model of the new cameras (default PINHOLE; one camera per image, as "
+        "COLMAP's default, grouped into physical cameras by --group)",
+    )
+    run.add_argument("--group", choices=GROUPINGS, default=RunOptions.group)
+    run.add_argument(
+        "--mapper",
+        choices=MAPPERS,
+        default=RunOptions.mapper,
+        help="pycolmap incremental mapping or the global mapper (GLOMAP), both started "
+        "from the TrifocalCalib estimate",
     )
     run.add_argument("--method", choices=METHODS, default=RunOptions.method)
     run.add_argument("--refine", choices=REFINE_CHOICES, default=RunOptions.refine)
@@ -191,11 +238,14 @@ def _check_output(path: Path, option: str) -> None:
 
 
 def _run_calibrate(args: argparse.Namespace) -> int:
-    from .database.snapshot import check_writable
+    from .database.camera_groups import format_ids
+    from .database.snapshot import check_writable, read_database
     from .intrinsics.calibrate import (
         CalibrationOptions,
-        calibrate_database,
+        calibrate_groups,
+        check_options,
         parse_prior,
+        updated_cameras,
         write_calibrations,
     )
 
@@ -209,32 +259,65 @@ def _run_calibrate(args: argparse.Namespace) -> int:
         focal_search=not args.no_focal_search,
         no_prior=args.no_prior,
         progress=not args.no_progress and sys.stderr.isatty(),
+        group=args.group,
     )
     if args.max_triplets < 1:
         raise CalibrationError("--max-triplets must be at least 1")
+    if (args.model is None) != (args.output is None):
+        raise CalibrationError("--model and --output go together")
+    if args.model is None and (args.refine is not None or args.refine_distortion):
+        raise CalibrationError("--refine and --refine-distortion need --model and --output")
+    if args.refine_distortion and args.refine == "none":
+        raise CalibrationError("--refine-distortion needs --refine ba")
+    if args.model is not None:
+        from .reconstruction.into_model import check_output_folder, read_model
+
+        check_output_folder(args.output, args.model)
+        read_model(args.model)  # a one-line error now, not after the calibration
     if args.json is not None:
         _check_output(args.json, "--json")
     if args.write:  # refuse a read-only database now, not after the calibration
         check_writable(args.database)
-    results = calibrate_database(args.database, options)
+    check_options(options)
+    contents = read_database(args.database)
+    by_method, skipped = calibrate_groups(contents, options, (options.method,))
+    results = by_method[options.method]
     print(
         f"{'camera':>6} {'model':<14} {'method':<11} {'fx':>10} {'fy':>10} {'cx':>10} "
-        f"{'cy':>10} {'triplets':>9} {'time':>7}"
+        f"{'cy':>10} {'triplets':>9} {'time':>7} {'ids':>4}"
     )
     for r in results:
         print(
             f"{r.camera_id:>6} {r.model:<14} {r.method:<11} {r.fx:>10.2f} {r.fy:>10.2f} "
             f"{r.cx:>10.2f} {r.cy:>10.2f} {r.num_inlier_triplets:>4}/{r.num_triplets:<4} "
-            f"{r.seconds:>6.1f}s"
+            f"{r.seconds:>6.1f}s {len(r.camera_ids):>4}"
         )
+        if len(r.camera_ids) > 1:
+            print(f"{'':>6} shared by camera ids {format_ids(r.camera_ids)}")
         warning = r.warning()
         if warning is not None:
             print(f"warning: {warning}", file=sys.stderr)
+    for group in skipped:
+        print(f"warning: {group.message()}", file=sys.stderr)
+    update = None
+    if args.model is not None:
+        from .reconstruction.into_model import calibrate_model
+
+        update = calibrate_model(
+            args.model,
+            args.output,
+            updated_cameras(results),
+            args.refine or "ba",
+            args.refine_distortion,
+        )
+        print(update.describe())
     if args.json is not None:
+        entries = [r.to_json() for r in results] + [g.to_json() for g in skipped]
+        if update is not None:
+            for entry in entries:
+                entry["model"] = update.to_json()
         try:
-            write_text_atomically(
-                args.json, json.dumps([r.to_json() for r in results], indent=2) + "\n"
-            )
+            write_text_atomically(args.json, json.dumps(entries, indent=2) + "\n")
         except OSError as exc:
             raise CalibrationError(f"cannot write {args.json}: {exc.strerror or exc}") from None
     if args.write:
@@ -258,6 +341,8 @@ def _run_pipeline(args: argparse.Namespace) -> int:
         max_image_size=args.max_image_size,
         matcher=args.matcher,
         camera_model=args.camera_model,
+        group=args.group,
+        mapper=args.mapper,
         method=args.method,
         refine=args.refine,
         seed=args.seed,
@@ -346,7 +431,7 @@ def main(argv: list[str] | None = None) -> int:
     previous = signal.signal(signal.SIGINT, watch) if in_main_thread else None
     try:
         args = build_parser().parse_args(argv)  # imports numpy, scipy, pycolmap, ...
-        _configure_logging(args.verbose)
+        _configure_logging(args.verbose + args.verbose_after)
         if watch.received:  # a Ctrl-C that an import swallowed (ImportError fallbacks)
             raise KeyboardInterrupt
         return _dispatch(args)

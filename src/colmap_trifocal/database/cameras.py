@@ -63,6 +63,9 @@ class CameraInfo:
         model: COLMAP model name, e.g. ``"SIMPLE_RADIAL"``.
         width, height: image size in pixels.
         params: COLMAP parameter vector exactly as stored (float64, read-only copy).
+        has_prior_focal_length: COLMAP's ``prior_focal_length`` flag: the focal length
+            came from the image's EXIF data (or the user), not from the size-based guess
+            f = 1.2 · max(width, height).
     """
 
     camera_id: int
@@ -70,6 +73,7 @@ class CameraInfo:
     width: int
     height: int
     params: np.ndarray
+    has_prior_focal_length: bool = False
 
     def __post_init__(self) -> None:
         layout = _layout(self.model)
@@ -84,6 +88,7 @@ class CameraInfo:
         object.__setattr__(self, "camera_id", int(self.camera_id))
         object.__setattr__(self, "width", int(self.width))
         object.__setattr__(self, "height", int(self.height))
+        object.__setattr__(self, "has_prior_focal_length", bool(self.has_prior_focal_length))
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, CameraInfo):
@@ -137,17 +142,21 @@ class CameraInfo:
         else:
             params[list(layout.focal)] = (fx, fy)
         params[list(layout.principal_point)] = (cx, cy)
-        return CameraInfo(self.camera_id, self.model, self.width, self.height, params)
+        return CameraInfo(
+            self.camera_id, self.model, self.width, self.height, params, self.has_prior_focal_length
+        )
 
     def to_pycolmap(self) -> pycolmap.Camera:
-        """A new ``pycolmap.Camera`` with the same id, model, size and params."""
-        return pycolmap.Camera(
+        """A new ``pycolmap.Camera`` with the same id, model, size, params and prior flag."""
+        camera = pycolmap.Camera(
             camera_id=self.camera_id,
             model=self.model,
             width=self.width,
             height=self.height,
             params=self.params.tolist(),
         )
+        camera.has_prior_focal_length = self.has_prior_focal_length
+        return camera
 
     @classmethod
     def from_pycolmap(cls, cam: pycolmap.Camera) -> CameraInfo:
@@ -158,6 +167,7 @@ class CameraInfo:
             width=int(cam.width),
             height=int(cam.height),
             params=np.asarray(cam.params, dtype=np.float64),
+            has_prior_focal_length=bool(cam.has_prior_focal_length),
         )
 
 

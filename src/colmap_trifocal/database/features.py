@@ -9,6 +9,15 @@ import pycolmap
 from ..common.errors import CalibrationError
 
 MATCHERS = ("exhaustive", "sequential")
+#: pycolmap's camera modes: ``auto`` is COLMAP's default (``colmap feature_extractor``,
+#: the GUI, ``pycolmap.extract_features``): measured with pycolmap 4.2.1, one camera
+#: per image, all with the same parameters when the images share size and EXIF data.
+CAMERA_MODES = {
+    "auto": pycolmap.CameraMode.AUTO,
+    "single": pycolmap.CameraMode.SINGLE,
+    "per-folder": pycolmap.CameraMode.PER_FOLDER,
+    "per-image": pycolmap.CameraMode.PER_IMAGE,
+}
 
 
 def build_database(
@@ -19,6 +28,7 @@ def build_database(
     camera_model: str = "PINHOLE",
     matcher: str = "exhaustive",
     single_camera: bool = True,
+    camera_mode: str | None = None,
 ) -> Path:
     """Extract SIFT features (CPU) and match them, writing a new COLMAP database.
 
@@ -32,6 +42,8 @@ def build_database(
             default initial guess, f = 1.2 · max(width, height), centred principal point).
         matcher: ``exhaustive`` or ``sequential``.
         single_camera: one camera for all images (True) or one per image.
+        camera_mode: one of ``CAMERA_MODES`` (overrides ``single_camera``); ``auto`` is
+            what COLMAP's own tools do.
     """
     image_dir, database = Path(image_dir), Path(database)
     if database.exists():
@@ -42,7 +54,11 @@ def build_database(
     reader.camera_model = camera_model
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.max_image_size = max_image_size
-    mode = pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.PER_IMAGE
+    if camera_mode is not None and camera_mode not in CAMERA_MODES:
+        raise CalibrationError(f"unknown camera mode {camera_mode!r} (choose from {CAMERA_MODES})")
+    if camera_mode is None:
+        camera_mode = "single" if single_camera else "per-image"
+    mode = CAMERA_MODES[camera_mode]
     pycolmap.extract_features(
         database,
         image_dir,

@@ -75,6 +75,9 @@ class DatabaseContents:
         fundamentals: only with ``read_database(..., fundamentals=True)``: (id1, id2) ->
             3x3 float64 F with ``x2^T F x1 = 0`` (pixels), for the
             matched pairs that have a usable F.
+        rig_sensor_cameras: camera ids that are one of several camera sensors of a rig
+            (COLMAP 3.12+ ``rigs`` table; pycolmap gives a database without it one rig
+            per camera): different physical cameras, never grouped together.
     """
 
     cameras: dict[int, CameraInfo] = field(default_factory=dict)
@@ -83,6 +86,7 @@ class DatabaseContents:
     keypoints: dict[int, np.ndarray] = field(default_factory=dict)
     matches: dict[Pair, np.ndarray] = field(default_factory=dict)
     fundamentals: dict[Pair, np.ndarray] = field(default_factory=dict)
+    rig_sensor_cameras: set[int] = field(default_factory=set)
 
 
 # --------------------------------------------------------------------------- file checks
@@ -332,6 +336,16 @@ def _verified_pairs(
     return skipped
 
 
+def _rig_sensor_cameras(rigs: list[pycolmap.Rig]) -> set[int]:
+    """Camera ids that share a rig with another camera sensor."""
+    cameras: set[int] = set()
+    for rig in rigs:
+        ids = {int(s.id) for s in rig.sensor_ids() if s.type == pycolmap.SensorType.CAMERA}
+        if len(ids) > 1:
+            cameras |= ids
+    return cameras
+
+
 def _read_snapshot(
     snapshot: Path, path: Path, fundamentals: bool = False
 ) -> tuple[DatabaseContents, Counter[str]]:
@@ -351,6 +365,7 @@ def _read_snapshot(
                 contents.image_camera[image_id] = int(image.camera_id)
                 contents.keypoints[image_id] = _keypoints_xy(db.read_keypoints(image_id))
             pair_ids, geometries = db.read_two_view_geometries()
+            contents.rig_sensor_cameras = _rig_sensor_cameras(db.read_all_rigs())
     except CalibrationError:
         raise
     except (RuntimeError, ValueError) as exc:

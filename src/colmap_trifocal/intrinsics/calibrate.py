@@ -1,11 +1,14 @@
 """Calibrate every camera of a COLMAP database: the public entry point.
 
 ``calibrate_database(path, options)`` reads the database (never changing it),
-then for each camera: undistorts its keypoints with the stored distortion,
-selects triplets of images taken with that camera, estimates one robust tensor
-per triplet, and solves for (fx, fy, cx, cy) with the chosen method. With
-``options.write`` the estimates are stored in the database (backup first, one
-transaction).
+groups its camera ids into physical cameras (:mod:`..database.camera_groups`;
+COLMAP's default gives one camera id per image), then for each group with at
+least 3 images: undistorts each image's keypoints with its own camera's stored
+distortion, selects triplets among the group's images, estimates one robust
+tensor per triplet, and solves for (fx, fy, cx, cy) with the chosen method.
+Groups with fewer images are skipped (reported, not an error, while another
+group calibrates). With ``options.write`` the estimates are stored in every
+camera of each group (backup first, one transaction).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import numpy as np
 from ..common.errors import CalibrationError
 from ..common.log import logger
 from ..common.parallel import map_jobs
+from ..database.camera_groups import GROUPINGS, CameraGroup, group_cameras
 from ..database.cameras import CameraInfo, check_supported, undistort_to_pinhole
 from ..database.snapshot import DatabaseContents, read_database, write_intrinsics
 from ..geometry.tensor_estimation import (
@@ -38,6 +42,7 @@ from ..geometry.tracks import (
 from ..geometry.trifocal import intrinsics_matrix
 from .focal_search import search_focal
 from .fundamental import calibrate_from_fundamentals
+from .group_results import GroupCalibration, SkippedGroup
 from .observability import FALLBACK_FACTOR, tolerance
 from .parametrization import FULL, SINGLE_FOCAL
 from .results import PARAMETER_NAMES, CameraCalibration, TripletReport, finite_or_none
@@ -68,8 +73,11 @@ class CalibrationOptions:
     #: (f = 1.2 · max(width, height), centred principal point); the focal search
     #: does the rest.
     no_prior: bool = False
-    #: Cameras to calibrate; None: all cameras with at least 3 images.
+    #: Cameras to calibrate (each selects its whole group); None: every group.
     camera_ids: list[int] | None = None
+    #: How camera ids are grouped into physical cameras: ``auto`` (same model, size
+    #: and stored parameters), ``camera`` (one per camera id) or ``all`` (one camera).
+    group: str = "auto"
     seed: int = 0
     #: Triplets used per camera, spread over the view graph (:mod:`.tracks`); None:
     #: every triplet with enough tracks. Measured on the Strecha scenes (±5 % priors,
@@ -145,10 +153,7 @@ def calibrate_database(
         CalibrationError: bad input (see the message).
     """
     options = options or CalibrationOptions()
-    if options.no_prior and options.prior is not None:
-        raise CalibrationError("--prior and --no-prior exclude each other")
-    if options.method not in METHODS:
-        raise CalibrationError(f"unknown method {options.method!r} (choose from {METHODS})")
+    check_options(options)
     path = Path(path)
     contents = read_database(path)
     results = calibrate_contents(contents, options)
@@ -157,11 +162,41 @@ def calibrate_database(
     return results
 
 
+def check_options(options: CalibrationOptions) -> None:
+    """CalibrationError for options that exclude each other or unknown choices."""
+    if options.no_prior and options.prior is not None:
+        raise CalibrationError("--prior and --no-prior exclude each other")
+    if options.method not in METHODS:
+        raise CalibrationError(f"unknown method {options.method!r} (choose from {METHODS})")
+    if options.group not in GROUPINGS:
+        raise CalibrationError(f"unknown --group {options.group!r} (choose from {GROUPINGS})")
+
+
+def updated_cameras(
+    results: list[CameraCalibration], determined_only: bool = True
+) -> dict[int, CameraInfo]:
+    """camera_id -> stored camera with its group's estimate, for every camera of every group.
+
+    Distortion is kept per camera. With ``determined_only`` a group the images
+    determined nothing of is left out (writing the prior back would record a guess).
+    """
+    updated: dict[int, CameraInfo] = {}
+    for r in results:
+        if determined_only and not r.determined_anything:
+            continue
+        if isinstance(r, GroupCalibration):
+            updated.update(r.updated_cameras())
+        elif r.stored_camera is not None:
+            updated[r.camera_id] = r.stored_camera.with_intrinsics(r.fx, r.fy, r.cx, r.cy)
+    return updated
+
+
 def write_calibrations(path: Path | str, results: list[CameraCalibration]) -> int:
     """Store the estimates in the database at ``path`` (backup first, one transaction).
 
-    A camera the images determined nothing of keeps its stored parameters: writing
-    the prior back would record a guess as a calibration. Distortion is kept.
+    Every camera id of a group gets the group's estimate. A group the images
+    determined nothing of keeps its stored parameters: writing the prior back
+    would record a guess as a calibration. Distortion is kept, per camera.
 
     Returns:
         The number of cameras written.
@@ -169,11 +204,7 @@ def write_calibrations(path: Path | str, results: list[CameraCalibration]) -> in
     Raises:
         CalibrationError: see :func:`.database.write_intrinsics`.
     """
-    updated = {
-        r.camera_id: r.stored_camera.with_intrinsics(r.fx, r.fy, r.cx, r.cy)
-        for r in results
-        if r.determined_anything and r.stored_camera is not None
-    }
+    updated = updated_cameras(results)
     if updated:
         backup = write_intrinsics(Path(path), updated)
         logger.info("wrote %d camera(s) to %s (backup: %s)", len(updated), path, backup)
@@ -194,30 +225,106 @@ def calibrate_contents_methods(
 
     Each result's ``seconds`` is what that method alone would take (the shared
     focal search and tensors plus its own solve). ``options.method`` is ignored.
+    Results are :class:`.group_results.GroupCalibration` (one per calibrated group);
+    skipped groups are only logged here (see :func:`calibrate_groups`).
     """
-    unknown = [m for m in methods if m not in METHODS]
-    if unknown:
-        raise CalibrationError(f"unknown method {unknown[0]!r} (choose from {METHODS})")
-    images_of: dict[int, list[int]] = {}
-    for image_id, camera_id in contents.image_camera.items():
-        images_of.setdefault(camera_id, []).append(image_id)
+    return calibrate_groups(contents, options, methods)[0]
+
+
+def plan_groups(
+    contents: DatabaseContents, options: CalibrationOptions
+) -> tuple[list[CameraGroup], list[SkippedGroup]]:
+    """The groups to calibrate (``options.group``, ``options.camera_ids``), and those skipped.
+
+    A group with fewer than 3 images is skipped. Raises CalibrationError for an
+    unknown camera id, and when no group has 3 images.
+    """
+    groups = group_cameras(
+        contents.cameras, contents.image_camera, options.group, contents.rig_sensor_cameras
+    )
     if options.camera_ids is not None:
         missing = sorted(set(options.camera_ids) - set(contents.cameras))
         if missing:
             raise CalibrationError(f"camera id {missing[0]} is not in the database")
-        camera_ids = sorted(options.camera_ids)
-    else:
-        camera_ids = sorted(c for c in contents.cameras if len(images_of.get(c, [])) >= 3)
-        if not camera_ids:
-            raise CalibrationError("no camera has at least 3 images")
-    results: dict[str, list[CameraCalibration]] = {m: [] for m in methods}
-    for c in camera_ids:
-        per_method = calibrate_camera(
-            contents, contents.cameras[c], sorted(images_of.get(c, [])), options, methods
+        wanted = set(options.camera_ids)
+        groups = [g for g in groups if wanted & set(g.camera_ids)]
+        if not groups:
+            raise CalibrationError(f"camera {min(wanted)} has no images")
+    ready = [g for g in groups if len(g.image_ids) >= 3]
+    skipped = [
+        SkippedGroup(list(g.camera_ids), len(g.image_ids), _images(len(g.image_ids)))
+        for g in groups
+        if len(g.image_ids) < 3
+    ]
+    if not ready:
+        if options.camera_ids is not None and len(groups) == 1:
+            (group,) = groups
+            raise CalibrationError(
+                f"{group.describe()} has {_images(len(group.image_ids))}; at least 3 are needed"
+            )
+        raise CalibrationError(
+            "no camera has at least 3 images (grouped with --group "
+            f"{options.group}: {len(groups)} group(s) of at most "
+            f"{max((len(g.image_ids) for g in groups), default=0)} image(s))"
         )
+    return ready, skipped
+
+
+def _images(count: int) -> str:
+    """``1 image``, ``2 images``."""
+    return f"{count} image" if count == 1 else f"{count} images"
+
+
+def calibrate_groups(
+    contents: DatabaseContents, options: CalibrationOptions, methods: tuple[str, ...]
+) -> tuple[dict[str, list[GroupCalibration]], list[SkippedGroup]]:
+    """Calibrate every group with each of ``methods``; also return the skipped groups.
+
+    With several groups, one that cannot be calibrated (no triplet, no valid
+    estimate, ...) is skipped with the reason while the others calibrate; when none
+    calibrates, the first group's error is raised.
+    """
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise CalibrationError(f"unknown method {unknown[0]!r} (choose from {METHODS})")
+    groups, skipped = plan_groups(contents, options)
+    results: dict[str, list[GroupCalibration]] = {m: [] for m in methods}
+    first_error: CalibrationError | None = None
+    for group in groups:
+        cameras = [contents.cameras[c] for c in group.camera_ids]
+        if len(group.camera_ids) > 1:
+            logger.info(
+                "%s: %d images with shared intrinsics", group.describe(), len(group.image_ids)
+            )
+        try:
+            per_method = calibrate_camera(
+                contents, cameras[0], list(group.image_ids), options, methods
+            )
+        except CalibrationError as exc:
+            if len(groups) == 1:
+                raise
+            first_error = first_error or exc
+            logger.warning("%s skipped: %s", group.describe(), exc)
+            skipped.append(SkippedGroup(list(group.camera_ids), len(group.image_ids), str(exc)))
+            continue
+        source = start_source(cameras[0], options)
         for method, result in per_method.items():
-            results[method].append(result)
-    return results
+            results[method].append(GroupCalibration.of(result, cameras, source))
+    if not results[methods[0]] and first_error is not None:
+        raise first_error
+    for group in skipped:
+        logger.warning("%s", group.message())
+    skipped.sort(key=lambda g: g.camera_id)
+    return results, skipped
+
+
+def start_source(camera: CameraInfo, options: CalibrationOptions) -> str:
+    """Where the starting intrinsics of ``camera`` come from (``START_SOURCES``)."""
+    if options.prior is not None:
+        return "--prior"
+    if options.no_prior:
+        return "default guess"
+    return "EXIF focal length" if camera.has_prior_focal_length else "stored camera"
 
 
 @dataclass
@@ -249,11 +356,24 @@ def calibrate_camera(
     options: CalibrationOptions,
     methods: tuple[str, ...],
 ) -> dict[str, CameraCalibration]:
-    """Estimate one camera from the triplets of its own images, with each of ``methods``."""
+    """Estimate one camera from the triplets of ``image_ids``, with each of ``methods``.
+
+    ``camera`` gives the model, size and prior; the images may belong to several camera
+    ids of one group, and each image's keypoints are undistorted with its own camera.
+    """
     check_supported(camera)
     if len(image_ids) < 3:
         raise CalibrationError(
             f"camera {camera.camera_id} has {len(image_ids)} image(s); at least 3 are needed"
+        )
+    source = start_source(camera, options)
+    if source == "EXIF focal length":
+        checked = " (checked by the focal search)" if options.focal_search else ""
+        logger.info(
+            "camera %d: starting from the EXIF focal length %.1f px%s",
+            camera.camera_id,
+            camera.intrinsics[0],
+            checked,
         )
     if options.no_prior:
         prior = default_guess(camera.width, camera.height)
@@ -263,7 +383,10 @@ def calibrate_camera(
         prior = np.asarray(camera.intrinsics, float)
     if camera.single_focal:
         prior[:2] = prior[:2].mean()
-    keypoints = {i: undistort_to_pinhole(camera, contents.keypoints[i]) for i in image_ids}
+    own_camera = {
+        i: contents.cameras.get(contents.image_camera.get(i, -1), camera) for i in image_ids
+    }
+    keypoints = {i: undistort_to_pinhole(own_camera[i], contents.keypoints[i]) for i in image_ids}
     own = set(image_ids)
     matches = {p: m for p, m in contents.matches.items() if p[0] in own and p[1] in own}
     if not matches:

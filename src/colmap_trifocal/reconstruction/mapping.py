@@ -1,4 +1,4 @@
-"""Incremental mapping from a calibrated database and bundle adjustment of the intrinsics.
+"""Mapping (incremental or global) from a calibrated database and bundle adjustment.
 
 The TrifocalCalib estimate is the camera's starting intrinsics. Mapping keeps
 them fixed (a good calibration is what makes registration reliable); the
@@ -23,6 +23,7 @@ from ..common.errors import CalibrationError
 from ..common.log import logger
 
 REFINE_CHOICES = ("none", "ba")
+MAPPERS = ("incremental", "global")
 
 
 @dataclass
@@ -90,6 +91,51 @@ def incremental_mapping(
     largest = max(models.values(), key=lambda r: r.num_reg_images())
     logger.info(
         "mapping: %d model(s), largest with %d registered images",
+        len(models),
+        largest.num_reg_images(),
+    )
+    return largest
+
+
+def global_mapping(
+    database: Path,
+    image_dir: Path | None,
+    output_dir: Path,
+    refine_intrinsics_while_mapping: bool | None = False,
+    seed: int = 0,
+) -> pycolmap.Reconstruction:
+    """pycolmap's global mapper (GLOMAP); returns the largest model, written to ``output_dir``.
+
+    Args:
+        database: COLMAP database with verified matches and the starting cameras.
+        image_dir: the images (point colours; None: no colours).
+        output_dir: folder receiving the models.
+        refine_intrinsics_while_mapping: False holds the cameras at their starting
+            values through the mapper's bundle adjustments (the TrifocalCalib start);
+            None keeps pycolmap's defaults (focal length and distortion refined, the
+            principal point never), i.e. plain COLMAP.
+        seed: random seed of the mapper.
+    """
+    options = pycolmap.GlobalPipelineOptions()
+    options.random_seed = seed
+    options.mapper.random_seed = seed
+    options.mapper.global_positioning.use_gpu = False
+    options.mapper.bundle_adjustment.ceres.use_gpu = False
+    if refine_intrinsics_while_mapping is not None:
+        ba = options.mapper.bundle_adjustment
+        ba.refine_focal_length = refine_intrinsics_while_mapping
+        ba.refine_principal_point = refine_intrinsics_while_mapping
+        ba.refine_extra_params = False
+    output_dir.mkdir(parents=True, exist_ok=True)
+    with keep_colmap_quiet():
+        models = pycolmap.global_mapping(
+            database, image_dir if image_dir is not None else output_dir, output_dir, options
+        )
+    if not models:
+        raise CalibrationError("global mapping registered no images (no model)")
+    largest = max(models.values(), key=lambda r: r.num_reg_images())
+    logger.info(
+        "global mapping: %d model(s), largest with %d registered images",
         len(models),
         largest.num_reg_images(),
     )

@@ -2,13 +2,15 @@
 
 Stages, each timed in ``report.json``:
 
-1. features: pycolmap SIFT extraction and matching into ``WORKSPACE/database.db``
-   (skipped when an existing database is given: it is copied, never modified);
-2. calibrate: TrifocalCalib on that database, the estimate written as the
-   cameras' starting intrinsics;
-3. mapping: pycolmap incremental mapping with the intrinsics held fixed, the
-   largest model written to ``WORKSPACE/sparse/0`` (or an existing model given
-   with ``model``: the estimate is written into it instead);
+1. features: pycolmap SIFT extraction and matching into ``WORKSPACE/database.db``,
+   cameras created as COLMAP's default does (one per image; skipped when an
+   existing database is given: it is copied, never modified);
+2. calibrate: the camera ids grouped into physical cameras, TrifocalCalib per
+   group, the estimate written as the cameras' starting intrinsics; in the
+   workspace copy the images of a group then share its first camera;
+3. mapping: pycolmap incremental or global (GLOMAP) mapping with the intrinsics
+   held fixed, the largest model written to ``WORKSPACE/sparse/0`` (or an
+   existing model given with ``model``: the estimate is written into it instead);
 4. refine (``ba``, the default): global bundle adjustment of focal lengths and
    principal points with poses and points; ``none`` skips it.
 """
@@ -31,11 +33,19 @@ from ..common.errors import CalibrationError
 from ..common.files import write_text_atomically
 from ..common.log import logger
 from ..database.features import build_database
+from ..database.shared_cameras import merge_group_cameras
 from ..database.snapshot import read_database, write_intrinsics
-from ..intrinsics.calibrate import PARAMETER_NAMES, CalibrationOptions, calibrate_contents
+from ..intrinsics.calibrate import (
+    PARAMETER_NAMES,
+    CalibrationOptions,
+    calibrate_contents,
+    updated_cameras,
+)
 from .mapping import (
+    MAPPERS,
     REFINE_CHOICES,
     camera_intrinsics,
+    global_mapping,
     incremental_mapping,
     mean_reprojection_error,
     refine_intrinsics,
@@ -53,6 +63,12 @@ class RunOptions:
     max_image_size: int = 1600
     matcher: str = "exhaustive"
     camera_model: str = "PINHOLE"
+    #: pycolmap camera mode of the extraction (``auto``: COLMAP's default, one camera
+    #: per image, grouped by the calibration).
+    camera_mode: str = "auto"
+    #: Grouping of camera ids into physical cameras (see ``calibrate --group``).
+    group: str = "auto"
+    mapper: str = "incremental"
     method: str = "msac-opt"
     refine: str = "ba"
     seed: int = 0
@@ -107,6 +123,8 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
         raise CalibrationError(
             f"unknown --refine {options.refine!r} (choose from {REFINE_CHOICES})"
         )
+    if options.mapper not in MAPPERS:
+        raise CalibrationError(f"unknown --mapper {options.mapper!r} (choose from {MAPPERS})")
     if options.model is not None and options.database is None:
         raise CalibrationError("--model needs the --database its images were matched in")
     names = list_images(images) if images is not None and options.database is None else None
@@ -128,6 +146,7 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
             max_image_size=options.max_image_size,
             camera_model=options.camera_model,
             matcher=options.matcher,
+            camera_mode=options.camera_mode,
         )
         contents = read_database(database)
     seconds["features"] = time.perf_counter() - start
@@ -135,13 +154,17 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
     start = time.perf_counter()
     calibrations = calibrate_contents(
         contents,
-        CalibrationOptions(method=options.method, seed=options.seed, progress=options.progress),
+        CalibrationOptions(
+            method=options.method,
+            seed=options.seed,
+            progress=options.progress,
+            group=options.group,
+        ),
     )
-    updated = {
-        c.camera_id: contents.cameras[c.camera_id].with_intrinsics(c.fx, c.fy, c.cx, c.cy)
-        for c in calibrations
-    }
+    updated = updated_cameras(calibrations, determined_only=False)
     write_intrinsics(database, updated, backup=False)  # our own copy in the workspace
+    if options.model is None:  # one camera per group while mapping (the copy only)
+        merge_group_cameras(database, [list(c.camera_ids) for c in calibrations])
     seconds["calibrate"] = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -152,10 +175,13 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
                 reconstruction.cameras[camera_id].params = camera.params
     else:
         with tempfile.TemporaryDirectory(dir=workspace) as tmp:
-            _stage("mapping (pycolmap incremental)", options.progress)
-            reconstruction = incremental_mapping(
-                database, images, Path(tmp), seed=options.seed, progress=options.progress
-            )
+            _stage(f"mapping (pycolmap {options.mapper})", options.progress)
+            if options.mapper == "global":
+                reconstruction = global_mapping(database, images, Path(tmp), seed=options.seed)
+            else:
+                reconstruction = incremental_mapping(
+                    database, images, Path(tmp), seed=options.seed, progress=options.progress
+                )
     seconds["mapping"] = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -191,11 +217,16 @@ def build_report(
     cameras = []
     for calibration in calibrations:
         camera_id = calibration.camera_id
-        refined = camera_intrinsics(reconstruction.cameras[camera_id])
+        ids = list(getattr(calibration, "camera_ids", [camera_id]))
+        in_model = [c for c in ids if c in reconstruction.cameras]
+        if not in_model:
+            continue  # none of the group's images was registered
+        refined = np.mean([camera_intrinsics(reconstruction.cameras[c]) for c in in_model], axis=0)
         estimate = calibration.intrinsics
         cameras.append(
             {
                 "camera_id": camera_id,
+                "camera_ids": ids,
                 "model": calibration.model,
                 "trifocal": dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True)),
                 "trifocal_std": calibration.std,
@@ -207,11 +238,12 @@ def build_report(
                     zip(PARAMETER_NAMES, map(float, refined - estimate), strict=True)
                 ),
                 "relative_difference": float(np.mean(np.abs(refined / estimate - 1))),
-                "num_registered_images": registered.get(camera_id, 0),
+                "num_registered_images": sum(registered.get(c, 0) for c in ids),
             }
         )
     return {
         "method": options.method,
+        "mapper": options.mapper,
         "refine": options.refine,
         "num_images": reconstruction.num_images(),
         "num_registered_images": reconstruction.num_reg_images(),

@@ -1,0 +1,169 @@
+"""Write estimated intrinsics into a copy of an existing COLMAP reconstruction, then refine.
+
+``calibrate DB --model DIR --output OUT``: the model at ``DIR`` (built from the same
+database, so its camera ids are the database's) is read with pycolmap, each camera
+with an estimate gets it (distortion kept), the copy is optionally refined by
+pycolmap bundle adjustment (focal lengths and principal points; distortion on
+request) and written to ``OUT``. ``DIR`` is never changed. The mean reprojection
+error (pixels, over all observations) is reported for the model as given, with the
+estimate written in (poses and points unchanged), and after the refinement.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import pycolmap
+
+from ..common.errors import CalibrationError
+from ..common.log import logger
+from ..database.cameras import CameraInfo
+from .mapping import REFINE_CHOICES, keep_colmap_quiet
+
+
+@dataclass
+class ModelUpdate:
+    """What :func:`calibrate_model` did; reprojection errors in pixels (mean over observations)."""
+
+    output: Path
+    camera_ids: list[int]
+    error_given: float
+    error_with_estimate: float
+    error_refined: float | None
+
+    def to_json(self) -> dict:
+        """The JSON form (``calibrate --json`` has it under ``"model"``)."""
+        return {
+            "output": str(self.output),
+            "camera_ids": self.camera_ids,
+            "reprojection_error_px": {
+                "given": self.error_given,
+                "with_estimate": self.error_with_estimate,
+                "refined": self.error_refined,
+            },
+        }
+
+    def describe(self) -> str:
+        """One line for the terminal."""
+        refined = "" if self.error_refined is None else f", refined {self.error_refined:.3f} px"
+        return (
+            f"wrote {self.output}: {len(self.camera_ids)} camera(s) updated; mean reprojection "
+            f"error: given model {self.error_given:.3f} px, with the estimate "
+            f"{self.error_with_estimate:.3f} px{refined}"
+        )
+
+
+def reprojection_error(reconstruction: pycolmap.Reconstruction) -> float:
+    """Mean reprojection error (pixels) with the current cameras, poses and points.
+
+    ``compute_mean_reprojection_error`` averages errors cached in the points, which
+    changing a camera or bundle adjustment leave stale; they are recomputed first.
+    """
+    reconstruction.update_point_3d_errors()
+    return float(reconstruction.compute_mean_reprojection_error())
+
+
+def read_model(path: Path) -> pycolmap.Reconstruction:
+    """A COLMAP model folder (binary or text); CalibrationError when it cannot be read."""
+    path = Path(path)
+    if not path.is_dir():
+        raise CalibrationError(f"model folder not found: {path}")
+    if not any((path / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
+        raise CalibrationError(f"not a COLMAP model (no cameras.bin or cameras.txt): {path}")
+    try:
+        return pycolmap.Reconstruction(path)
+    except (RuntimeError, ValueError) as exc:
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[-1]
+        raise CalibrationError(f"cannot read COLMAP model {path}: {first}") from None
+
+
+def check_output_folder(output: Path, model: Path) -> None:
+    """Refuse an output folder that is the model itself or already holds files."""
+    output, model = Path(output), Path(model)
+    if output.exists() and output.resolve() == model.resolve():
+        raise CalibrationError(
+            f"--output must differ from --model (the model is never changed): {output}"
+        )
+    if output.exists() and (not output.is_dir() or any(output.iterdir())):
+        raise CalibrationError(f"--output must be a new or empty folder: {output}")
+
+
+def set_intrinsics(
+    reconstruction: pycolmap.Reconstruction, cameras: dict[int, CameraInfo]
+) -> list[int]:
+    """Write each camera's params into the reconstruction's camera of the same id.
+
+    Returns:
+        The ids written. Raises CalibrationError when no camera id matches, or when a
+        matching camera differs in model or image size (a model of another database).
+    """
+    written = []
+    for camera_id, camera in sorted(cameras.items()):
+        if camera_id not in reconstruction.cameras:
+            continue
+        target = reconstruction.cameras[camera_id]
+        if (target.model.name, target.width, target.height) != (
+            camera.model,
+            camera.width,
+            camera.height,
+        ):
+            raise CalibrationError(
+                f"camera {camera_id} of the model is a {target.model.name} "
+                f"{target.width}x{target.height}, the database's a {camera.model} "
+                f"{camera.width}x{camera.height}: is the model from this database?"
+            )
+        target.params = camera.params
+        written.append(camera_id)
+    if not written:
+        raise CalibrationError(
+            "no camera of the model has a calibrated camera's id (is the model from this database?)"
+        )
+    return written
+
+
+def bundle_adjust(reconstruction: pycolmap.Reconstruction, distortion: bool = False) -> None:
+    """pycolmap global bundle adjustment of poses, points, focal lengths and principal
+    points (and the distortion parameters with ``distortion``), in place."""
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = True
+    options.refine_principal_point = True
+    options.refine_extra_params = distortion
+    options.print_summary = False
+    with keep_colmap_quiet():
+        pycolmap.bundle_adjustment(reconstruction, options)
+
+
+def calibrate_model(
+    model: Path,
+    output: Path,
+    cameras: dict[int, CameraInfo],
+    refine: str = "ba",
+    refine_distortion: bool = False,
+) -> ModelUpdate:
+    """Copy the model at ``model`` to ``output`` with ``cameras``' params, refined on request.
+
+    Args:
+        model: existing COLMAP model folder (left unchanged).
+        output: new or empty folder for the result.
+        cameras: camera_id -> camera with the estimated intrinsics.
+        refine: ``none`` or ``ba`` (see :func:`bundle_adjust`).
+        refine_distortion: also refine the distortion parameters (with ``ba``).
+    """
+    if refine not in REFINE_CHOICES:
+        raise CalibrationError(f"unknown --refine {refine!r} (choose from {REFINE_CHOICES})")
+    check_output_folder(output, model)
+    reconstruction = read_model(model)
+    if reconstruction.num_reg_images() == 0:
+        raise CalibrationError(f"the model has no registered images: {model}")
+    given = reprojection_error(reconstruction)
+    written = set_intrinsics(reconstruction, cameras)
+    with_estimate = reprojection_error(reconstruction)
+    refined = None
+    if refine == "ba":
+        bundle_adjust(reconstruction, refine_distortion)
+        refined = reprojection_error(reconstruction)
+    Path(output).mkdir(parents=True, exist_ok=True)
+    reconstruction.write(output)
+    logger.info("wrote the model with %d calibrated camera(s) to %s", len(written), output)
+    return ModelUpdate(Path(output), written, given, with_estimate, refined)
