@@ -456,6 +456,24 @@ def _send_sigint() -> None:
     os.kill(os.getpid(), signal.SIGINT)
 
 
+def _send_sigterm() -> None:
+    """A real SIGTERM to this process (``kill PID``, a service manager stopping a job)."""
+    os.kill(os.getpid(), signal.SIGTERM)
+
+
+def _send_sighup() -> None:
+    """A real SIGHUP to this process (the terminal was closed)."""
+    os.kill(os.getpid(), signal.SIGHUP)
+
+
+#: How each signal ends a run: its one line and exit status.
+SIGNAL_ENDINGS = {
+    "sigint": (_send_sigint, "error: interrupted", 130),
+    "sigterm": (_send_sigterm, "error: terminated", 143),
+    "sighup": (_send_sighup, "error: terminated (hangup)", 129),
+}
+
+
 def _main(capsys: pytest.CaptureFixture, *args: object) -> tuple[int, list[str]]:
     status = cli.main([str(a) for a in args])
     return status, capsys.readouterr().err.splitlines()
@@ -484,11 +502,17 @@ def test_interrupt_between_update_and_commit(
 @pytest.mark.parametrize(
     ("function", "inject"),
     [
-        ("_claim_backup_path", "after-sigint"),  # the empty .bak exists, the copy not yet
+        ("_claim_backup_path", "after-sigint"),  # the empty temporary exists, no copy yet
         ("_copy_database", "before-sigint"),  # Ctrl-C while copying
-        ("_copy_database", "after-raise"),  # the complete .bak exists, not yet recorded
+        ("_copy_database", "after-raise"),  # the complete copy exists, not yet renamed
+        ("_publish_backup", "after-sigint"),  # the .bak exists, nothing written yet
         ("_update_params", "before-raise"),
         ("_update_params", "after-sigint"),
+        # SIGTERM and SIGHUP are handled like Ctrl-C (issue 15, item 1).
+        ("_claim_backup_path", "after-sigterm"),
+        ("_copy_database", "before-sigterm"),
+        ("_publish_backup", "after-sighup"),
+        ("_update_params", "after-sighup"),
     ],
 )
 def test_interrupt_before_commit_leaves_nothing(
@@ -501,11 +525,13 @@ def test_interrupt_before_commit_leaves_nothing(
     """Interrupted at any step before COMMIT: database byte-identical, no backup left."""
     before = sha256(database_copy)
     when, how = inject.split("-")
-    action = _send_sigint if how == "sigint" else _raise_interrupt
+    action, line, expected_status = SIGNAL_ENDINGS.get(
+        how, (_raise_interrupt, *SIGNAL_ENDINGS["sigint"][1:])
+    )
     wrap = _after if when == "after" else _before
     monkeypatch.setattr(database_module, function, wrap(getattr(database_module, function), action))
     status, lines = _main(capsys, "calibrate", database_copy, *QUICK)
-    assert (status, lines) == (130, ["error: interrupted"])
+    assert (status, lines) == (expected_status, [line])
     assert sha256(database_copy) == before
     assert listing(database_copy.parent) == ["database.db"]
 
@@ -524,6 +550,57 @@ def test_interrupt_during_commit_is_held_until_written(
     assert backup.read_bytes() == original_bytes
     np.testing.assert_allclose(camera_params(database_copy), PARAMS, rtol=1e-5)
     assert listing(database_copy.parent) == ["database.db", "database.db.bak"]
+
+
+@pytest.mark.parametrize("how", ["sigterm", "sighup"])
+def test_signal_during_commit_is_held_until_written(
+    how: str,
+    database_copy: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture,
+) -> None:
+    """Any of the three signals as COMMIT starts: the commit completes, the backup is kept."""
+    send, line, expected_status = SIGNAL_ENDINGS[how]
+    monkeypatch.setattr(database_module, "_commit", _before(database_module._commit, send))
+    status, lines = _main(capsys, "calibrate", database_copy, *QUICK)
+    assert status == expected_status
+    assert len(lines) == 1 and lines[0].startswith(f"{line} (after the new intrinsics"), lines
+    np.testing.assert_allclose(camera_params(database_copy), PARAMS, rtol=1e-5)
+    assert listing(database_copy.parent) == ["database.db", "database.db.bak"]
+
+
+def test_backup_is_copied_under_a_temporary_name(
+    database_copy: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    """While the copy is made no ``.bak`` exists: a process killed meanwhile (even by
+    SIGKILL) never leaves a partial ``.bak`` that a later ``--write`` would keep as
+    ``.bak``, making ``.bak1`` (issue 15, item 1). The complete copy is renamed."""
+    original = database_copy.read_bytes()
+    seen: list[list[str]] = []
+    copy = database_module._copy_database
+
+    def watched(path: Path, target: Path) -> None:
+        seen.append(listing(path.parent))
+        copy(path, target)
+        seen.append(listing(path.parent))
+
+    monkeypatch.setattr(database_module, "_copy_database", watched)
+    status, _ = _main(capsys, "calibrate", database_copy, *QUICK)
+    assert status == 0
+    assert seen and not any("database.db.bak" in names for names in seen), seen
+    assert listing(database_copy.parent) == ["database.db", "database.db.bak"]
+    assert database_copy.with_name("database.db.bak").read_bytes() == original
+
+
+def test_a_second_write_keeps_the_first_backup(database_copy: Path) -> None:
+    """An existing ``.bak`` is never overwritten: the next backup is ``.bak1``."""
+    original = database_copy.read_bytes()
+    assert run_cli("calibrate", database_copy, *QUICK).returncode == 0
+    first = database_copy.read_bytes()
+    assert run_cli("calibrate", database_copy, *QUICK).returncode == 0
+    assert listing(database_copy.parent) == ["database.db", "database.db.bak", "database.db.bak1"]
+    assert database_copy.with_name("database.db.bak").read_bytes() == original
+    assert database_copy.with_name("database.db.bak1").read_bytes() == first
 
 
 def test_no_space_for_the_backup(
@@ -562,8 +639,21 @@ def _write_state(path: Path, original: bytes, new_params: np.ndarray) -> str:
     return "written"
 
 
-def test_sigint_at_any_time_during_write(good_database: Path, tmp_path: Path) -> None:
-    """Real SIGINTs, as a terminal sends them (to the process group), across a whole run.
+@pytest.mark.parametrize(
+    ("signum", "line", "status", "runs"),
+    [
+        (signal.SIGINT, "error: interrupted", 130, 6),
+        # Issue 15, item 1: these ended with glog's stack dump and a partial .bak.
+        (signal.SIGTERM, "error: terminated", 143, 3),
+        (signal.SIGHUP, "error: terminated (hangup)", 129, 3),
+    ],
+    ids=["SIGINT", "SIGTERM", "SIGHUP"],
+)
+def test_signal_at_any_time_during_write(
+    signum: int, line: str, status: int, runs: int, good_database: Path, tmp_path: Path
+) -> None:
+    """Real signals, as a terminal (or ``kill``) sends them to the process group, across
+    a whole run.
 
     Afterwards the database is either byte-identical with no backup, or holds exactly
     the new params with a ``.bak`` equal to the original: never a half state, never a
@@ -581,7 +671,7 @@ def test_sigint_at_any_time_during_write(good_database: Path, tmp_path: Path) ->
     assert completed.returncode == 0, completed.stderr
     new_params = camera_params(reference)
     np.testing.assert_allclose(new_params, PARAMS, rtol=1e-4)
-    delays: list[float | None] = [0.4, *np.linspace(0.6, duration, 6), None]
+    delays: list[float | None] = [0.4, *np.linspace(0.6, duration, runs), None]
     states = []
     for index, delay in enumerate(delays):
         path = tmp_path / f"run{index}" / "database.db"
@@ -598,7 +688,7 @@ def test_sigint_at_any_time_during_write(good_database: Path, tmp_path: Path) ->
         if delay is not None:
             time.sleep(delay)
             try:
-                os.killpg(process.pid, signal.SIGINT)
+                os.killpg(process.pid, signum)
             except ProcessLookupError:  # already finished
                 pass
         stdout, stderr = process.communicate(timeout=120)
@@ -608,14 +698,19 @@ def test_sigint_at_any_time_during_write(good_database: Path, tmp_path: Path) ->
         if stderr == "" and "wrote 1 camera(s)" in stdout:
             # Finished; status 0, or -SIGINT when the signal came during the interpreter's
             # shutdown, after it had put back the default handler (seen at ~duration).
-            assert process.returncode in (0, -signal.SIGINT) and state == "written", delay
+            assert process.returncode in (0, -signum) and state == "written", delay
+            continue
+        if signum != signal.SIGINT and process.returncode == -signum and stderr == "":
+            # SIGTERM/SIGHUP before main() installed its handler: the default action,
+            # which ends the process before it has opened anything.
+            assert state == "untouched", delay
             continue
         # Exit status 130, or killed by SIGINT (a shell shows 130 as well). CPython ends
         # that way, after main() returned 130, when the KeyboardInterrupt was raised
         # inside an exec()/eval() of a string (dataclass and namedtuple definitions of the
         # modules still being imported): it remembers it as "unhandled" and re-raises
         # SIGINT at exit.
-        assert process.returncode in (130, -signal.SIGINT), (delay, stderr)
+        assert process.returncode in (status, -signum), (delay, stderr)
         lines = stderr.splitlines()
-        assert len(lines) == 1 and lines[0].startswith("error: interrupted"), (delay, stderr)
+        assert len(lines) == 1 and lines[0].startswith(line), (delay, stderr)
     assert states[0] == "untouched" and states[-1] == "written", states

@@ -1,7 +1,8 @@
 """Command line: ``colmap-trifocal calibrate DATABASE ...`` (see README / DESIGN.md).
 
 Exit status 0 on success. Input problems print one line ``error: ...`` on
-stderr and exit with status 2 (130 when interrupted); no traceback.
+stderr and exit with status 2 (130 when interrupted by Ctrl-C, 143 on SIGTERM, 129 on
+SIGHUP); no traceback.
 
 The heavy modules (numpy, scipy, pycolmap, the pipeline) are imported inside
 :func:`main`, under its error handling, so that Ctrl-C during the first second
@@ -16,10 +17,12 @@ import os
 import signal
 import sys
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from . import __version__
-from .common.errors import CalibrationError
+from .common.errors import TERMINATING_SIGNALS, CalibrationError
 from .common.files import write_text_atomically
 
 EXIT_INPUT_ERROR = 2
@@ -311,26 +314,67 @@ def _dispatch(args: argparse.Namespace) -> int:
 
 
 class _InterruptWatch:
-    """SIGINT handler that raises KeyboardInterrupt like Python's own and remembers it.
+    """Handler of SIGINT, SIGTERM and SIGHUP: raises KeyboardInterrupt and remembers the signal.
 
-    Some libraries turn the KeyboardInterrupt into another exception, e.g. pycolmap's C++
-    module, interrupted while it loads, fails with an ``ImportError``/``RuntimeError``;
-    :func:`main` still reports such a run as interrupted.
+    All three end a run the same way (the write in progress rolled back, one ``error:``
+    line), SIGINT as Python's own handler does. Some libraries turn the KeyboardInterrupt
+    into another exception, e.g. pycolmap's C++ module, interrupted while it loads, fails
+    with an ``ImportError``/``RuntimeError``; :func:`main` still reports such a run as
+    interrupted.
     """
 
     def __init__(self) -> None:
-        self.received = False
+        self.signum: int | None = None
+
+    @property
+    def received(self) -> bool:
+        return self.signum is not None
 
     def __call__(self, signum: int, frame: object) -> None:
-        self.received = True
+        if self.signum is None:
+            self.signum = signum
         raise KeyboardInterrupt
 
+    def install(self) -> dict[int, object]:
+        """Install for every signal not ignored (``nohup``); the previous handlers."""
+        return {
+            signum: signal.signal(signum, self)
+            for signum in TERMINATING_SIGNALS
+            if signal.getsignal(signum) is not signal.SIG_IGN
+        }
 
-def _interrupted(exc: BaseException) -> int:
-    """Print the one line for an interrupted run; the exit status 130."""
+
+@contextmanager
+def _glog_cannot_take_sigterm(watch: _InterruptWatch, in_main_thread: bool) -> Iterator[None]:
+    """Hold SIGTERM back while pycolmap loads; then install ``watch`` for it again.
+
+    Importing pycolmap installs glog's failure handler for SIGTERM (and SIGSEGV, ...),
+    which ends the process with a stack dump and no clean-up. A SIGTERM that arrives
+    meanwhile stays pending (``pthread_sigmask``) and reaches ``watch`` afterwards.
+    """
+    if not in_main_thread or signal.getsignal(signal.SIGTERM) is not watch:
+        yield
+        return
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, watch)
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+
+
+def _interrupted(exc: BaseException, signum: int | None = None) -> int:
+    """Print the one line for an interrupted run; its exit status (128 + the signal).
+
+    Ctrl-C (SIGINT) is "interrupted", SIGTERM and SIGHUP "terminated".
+    """
     detail = f" ({exc})" if isinstance(exc, KeyboardInterrupt) and str(exc) else ""
-    print(f"error: interrupted{detail}", file=sys.stderr)
-    return EXIT_INTERRUPTED
+    signum = signal.SIGINT if signum is None else signum
+    word = "interrupted" if signum == signal.SIGINT else "terminated"
+    if signum == signal.SIGHUP:
+        detail = f" (hangup){detail}"
+    print(f"error: {word}{detail}", file=sys.stderr)
+    return 128 + int(signum)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -343,33 +387,34 @@ def main(argv: list[str] | None = None) -> int:
     """
     watch = _InterruptWatch()
     in_main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, watch) if in_main_thread else None
+    previous = watch.install() if in_main_thread else {}
     try:
-        args = build_parser().parse_args(argv)  # imports numpy, scipy, pycolmap, ...
-        _configure_logging(args.verbose)
+        with _glog_cannot_take_sigterm(watch, in_main_thread):
+            args = build_parser().parse_args(argv)  # imports numpy, scipy, pycolmap, ...
+            _configure_logging(args.verbose)
         if watch.received:  # a Ctrl-C that an import swallowed (ImportError fallbacks)
             raise KeyboardInterrupt
         return _dispatch(args)
     except KeyboardInterrupt as exc:
-        return _interrupted(exc)
+        return _interrupted(exc, watch.signum)
     except CalibrationError as exc:
         if watch.received:
-            return _interrupted(exc)
+            return _interrupted(exc, watch.signum)
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_INPUT_ERROR
     except OSError as exc:
         if watch.received:
-            return _interrupted(exc)
+            return _interrupted(exc, watch.signum)
         where = f": {exc.filename}" if exc.filename is not None else ""
         print(f"error: {exc.strerror or exc}{where}", file=sys.stderr)
         return EXIT_INPUT_ERROR
     except Exception as exc:
         if watch.received:
-            return _interrupted(exc)
+            return _interrupted(exc, watch.signum)
         raise
     finally:
-        if in_main_thread:
-            signal.signal(signal.SIGINT, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 if __name__ == "__main__":

@@ -462,17 +462,61 @@ def _check_writable(path: Path) -> None:
 
 
 def _claim_backup_path(path: Path) -> Path:
-    """Create (exclusively) and return the first free ``<name>.bak``, ``.bak1``, ``.bak2``, ..."""
+    """Create and return an empty temporary file next to the database for the backup copy.
+
+    The copy is made under this hidden name (``.<name>.bak.XXXXXXXX.tmp``) and only
+    renamed to ``<name>.bak`` by :func:`_publish_backup` once it is complete and on disk,
+    so a ``.bak`` is never a partial copy, whatever ends the process.
+    """
+    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.bak.", suffix=".tmp")
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)
+    finally:
+        os.close(fd)
+    return Path(name)
+
+
+def _publish_backup(temporary: Path, path: Path) -> Path:
+    """Give the complete copy ``temporary`` the first free name ``<name>.bak``, ``.bak1``, ...
+
+    An existing backup is never overwritten: the name is taken with ``os.link``, which
+    fails if it exists (a file system without hard links falls back to a check and a
+    rename). The folder is flushed so that the name is on disk before the database
+    changes.
+    """
     index = 0
     while True:
         candidate = path.with_name(f"{path.name}.bak{index or ''}")
         try:
-            fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+            os.link(temporary, candidate)
         except FileExistsError:
             index += 1
             continue
-        os.close(fd)
+        except OSError:  # no hard links here
+            if candidate.exists():
+                index += 1
+                continue
+            os.rename(temporary, candidate)
+        else:
+            temporary.unlink()
+        _sync_folder(path.parent)
         return candidate
+
+
+def _sync_folder(folder: Path) -> None:
+    """Flush a folder's entries (a new file name) to disk, where the system allows it."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def _sync(path: Path) -> None:
@@ -593,10 +637,11 @@ def write_intrinsics(
 
     Only the ``params`` column of the given cameras changes. Order of events: take the
     write lock (``BEGIN IMMEDIATE``: nobody else can commit from now on), check the
-    cameras, copy the database to the backup and flush it to disk, UPDATE, COMMIT, read
-    back. Until COMMIT any error or interrupt (Ctrl-C) rolls back and deletes the backup
-    just made, leaving the database byte-identical and no backup behind; an interrupt
-    that arrives during COMMIT is held until the commit is done and the backup kept.
+    cameras, copy the database to a temporary file and flush it to disk, rename it to the
+    backup, UPDATE, COMMIT, read back. Until COMMIT any error or interrupt (Ctrl-C,
+    SIGTERM, SIGHUP) rolls back and deletes the backup (or its temporary copy) just
+    made, leaving the database byte-identical and no backup behind; an interrupt that
+    arrives during COMMIT is held until the commit is done and the backup kept.
 
     Args:
         path: COLMAP database.
@@ -622,6 +667,7 @@ def write_intrinsics(
     _check_params(cameras)
     uri = f"{path.resolve().as_uri()}?mode=rw"
     backup_path: Path | None = None
+    temporary: Path | None = None
     try:
         con = sqlite3.connect(uri, uri=True, timeout=_LOCK_TIMEOUT_S, isolation_level=None)
         try:
@@ -631,9 +677,12 @@ def write_intrinsics(
             try:
                 _check_cameras_match(con, cameras, path)
                 if backup:
-                    with interrupts_deferred():  # a created backup file is always known
-                        backup_path = _claim_backup_path(path)
-                    _make_backup(path, backup_path)
+                    with interrupts_deferred():  # a created file is always known
+                        temporary = _claim_backup_path(path)
+                    _make_backup(path, temporary)
+                    with interrupts_deferred():
+                        backup_path = _publish_backup(temporary, path)
+                        temporary = None
                     logger.info("backed up %s to %s", path, backup_path)
                 _update_params(con, cameras)
                 with interrupts_deferred():
@@ -643,8 +692,9 @@ def write_intrinsics(
                 if not committed:
                     if con.in_transaction:
                         con.execute("ROLLBACK")  # if this fails too, the backup stays
-                    if backup_path is not None:  # complete or partial: nothing was written
-                        backup_path.unlink(missing_ok=True)
+                    for made in (temporary, backup_path):  # nothing was written: no backup
+                        if made is not None:
+                            made.unlink(missing_ok=True)
                     raise
                 if isinstance(exc, KeyboardInterrupt):  # held back during COMMIT
                     kept = f"backup: {backup_path}" if backup_path else "no backup"
