@@ -23,7 +23,7 @@ from pathlib import Path
 
 from . import __version__
 from .common.errors import TERMINATING_SIGNALS, CalibrationError
-from .common.files import write_text_atomically
+from .common.files import file_identity, refuse_overwriting_input, write_text_atomically
 
 EXIT_INPUT_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -80,7 +80,12 @@ def _add_calibrate_parser(commands: argparse._SubParsersAction) -> None:
         help="calibrate only this camera (repeatable)",
     )
     calibrate.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    calibrate.add_argument("--json", type=Path, metavar="OUT", help="write the results as JSON")
+    calibrate.add_argument(
+        "--json",
+        type=Path,
+        metavar="OUT",
+        help="write the results as JSON (-: to stdout, the table then goes to stderr)",
+    )
     calibrate.add_argument(
         "--write",
         action="store_true",
@@ -102,6 +107,7 @@ def _add_calibrate_parser(commands: argparse._SubParsersAction) -> None:
 
 def _add_run_parser(commands: argparse._SubParsersAction) -> None:
     """``run IMAGES WORKSPACE``: features, calibration, mapping, bundle adjustment."""
+    from .database.cameras import SUPPORTED_MODELS
     from .database.features import MATCHERS
     from .intrinsics.calibrate import METHODS
     from .reconstruction.mapping import REFINE_CHOICES
@@ -121,6 +127,7 @@ def _add_run_parser(commands: argparse._SubParsersAction) -> None:
     run.add_argument(
         "--camera-model",
         default=RunOptions.camera_model,
+        choices=SUPPORTED_MODELS,
         help="COLMAP model of the new camera (default PINHOLE)",
     )
     run.add_argument("--method", choices=METHODS, default=RunOptions.method)
@@ -215,39 +222,67 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     )
     if args.max_triplets < 1:
         raise CalibrationError("--max-triplets must be at least 1")
-    if args.json is not None:
+    json_to_stdout = args.json is not None and _is_stdout(args.json)
+    if args.json is not None and not json_to_stdout:
         _check_output(args.json, "--json")
+        refuse_overwriting_input(args.json, _database_files(args.database), "--json", "database")
     if args.write:  # refuse a read-only database now, not after the calibration
         check_writable(args.database)
     results = calibrate_database(args.database, options)
+    # With the JSON on stdout, the table and messages go to stderr: stdout stays JSON.
+    out = sys.stderr if json_to_stdout else sys.stdout
     print(
         f"{'camera':>6} {'model':<14} {'method':<11} {'fx':>10} {'fy':>10} {'cx':>10} "
-        f"{'cy':>10} {'triplets':>9} {'time':>7}"
+        f"{'cy':>10} {'triplets':>9} {'time':>7}",
+        file=out,
     )
     for r in results:
         print(
             f"{r.camera_id:>6} {r.model:<14} {r.method:<11} {r.fx:>10.2f} {r.fy:>10.2f} "
             f"{r.cx:>10.2f} {r.cy:>10.2f} {r.num_inlier_triplets:>4}/{r.num_triplets:<4} "
-            f"{r.seconds:>6.1f}s"
+            f"{r.seconds:>6.1f}s",
+            file=out,
         )
         warning = r.warning()
         if warning is not None:
             print(f"warning: {warning}", file=sys.stderr)
     if args.json is not None:
+        text = json.dumps([r.to_json() for r in results], indent=2) + "\n"
         try:
-            write_text_atomically(
-                args.json, json.dumps([r.to_json() for r in results], indent=2) + "\n"
-            )
+            if json_to_stdout:
+                sys.stdout.write(text)
+                sys.stdout.flush()
+            else:
+                write_text_atomically(args.json, text)
         except OSError as exc:
             raise CalibrationError(f"cannot write {args.json}: {exc.strerror or exc}") from None
     if args.write:
         written = write_calibrations(args.database, results)
         if written:
-            print(f"wrote {written} camera(s) to {args.database}")
+            print(f"wrote {written} camera(s) to {args.database}", file=out)
         for r in results:
             if not r.determined_anything:
-                print(f"camera {r.camera_id} not written: the images determine none of its values")
+                print(
+                    f"camera {r.camera_id} not written: the images determine none of its values",
+                    file=out,
+                )
     return 0
+
+
+def _is_stdout(path: Path) -> bool:
+    """``-``, or a path naming this process's standard output (``/dev/stdout``, ...)."""
+    if str(path) == "-":
+        return True
+    try:
+        st = os.fstat(sys.stdout.fileno())
+    except (OSError, ValueError):  # no usable file descriptor (captured, closed)
+        return False
+    return file_identity(path) == (st.st_dev, st.st_ino)
+
+
+def _database_files(database: Path) -> list[Path]:
+    """The database and SQLite's companion files (which no output may replace either)."""
+    return [database, *(database.with_name(database.name + s) for s in ("-wal", "-journal"))]
 
 
 def _run_pipeline(args: argparse.Namespace) -> int:
@@ -257,6 +292,8 @@ def _run_pipeline(args: argparse.Namespace) -> int:
         raise CalibrationError("--max-image-size must be at least 100 pixels")
     if args.png is not None:
         _check_output(args.png, "--png")
+        if args.database is not None:
+            refuse_overwriting_input(args.png, _database_files(args.database), "--png", "database")
     options = RunOptions(
         max_image_size=args.max_image_size,
         matcher=args.matcher,

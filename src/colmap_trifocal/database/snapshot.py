@@ -208,6 +208,34 @@ def _copy_for_reading(path: Path, dst: Path, immutable: bool) -> int:
         raise _sqlite_error(exc, path) from exc
 
 
+def copy_database(path: Path, target: Path) -> None:
+    """Copy the whole COLMAP database at ``path`` into the new file ``target``.
+
+    SQLite's backup API, so that changes committed but still in the ``-wal`` file are
+    part of the copy (a copy of the main file alone loses them). ``path`` is opened
+    read-only; a WAL database without a ``-wal`` file is opened as immutable, which
+    creates no ``-wal``/``-shm`` files next to it (see :func:`_snapshot`).
+
+    Raises:
+        CalibrationError: not an SQLite database, locked, corrupt, or the copy failed.
+    """
+    path, target = Path(path), Path(target)
+    header = _check_sqlite_file(path)
+    wal_mode = header[18] == 2 and header[19] == 2
+    immutable = wal_mode and not _sidecar(path, "-wal").exists()
+    query = "mode=ro&immutable=1" if immutable else "mode=ro"
+    try:
+        source = sqlite3.connect(
+            f"{path.resolve().as_uri()}?{query}", uri=True, timeout=_LOCK_TIMEOUT_S
+        )
+        try:
+            _backup_into(source, target)
+        finally:
+            source.close()
+    except sqlite3.Error as exc:
+        raise _sqlite_error(exc, path, "copy") from exc
+
+
 def _stat_key(path: Path) -> tuple[int, int, int]:
     st = path.stat()
     return st.st_ino, st.st_size, st.st_mtime_ns
