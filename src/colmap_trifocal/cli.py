@@ -17,11 +17,13 @@ import os
 import signal
 import sys
 import threading
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 from . import __version__
+from .common.arguments import seed
 from .common.errors import TERMINATING_SIGNALS, CalibrationError
 from .common.files import file_identity, refuse_overwriting_input, write_text_atomically
 
@@ -29,11 +31,16 @@ EXIT_INPUT_ERROR = 2
 EXIT_INTERRUPTED = 130
 
 
+def one_line(text: str) -> str:
+    """``text`` with control characters escaped (a newline in a path becomes ``\\n``)."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 class _OneLineParser(argparse.ArgumentParser):
     """argparse that reports usage mistakes as a single ``error: ...`` line."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        sys.stderr.write(f"error: {message} (see '{self.prog} --help')\n")
+        sys.stderr.write(f"error: {one_line(message)} (see '{self.prog} --help')\n")
         raise SystemExit(EXIT_INPUT_ERROR)
 
 
@@ -79,7 +86,7 @@ def _add_calibrate_parser(commands: argparse._SubParsersAction) -> None:
         metavar="ID",
         help="calibrate only this camera (repeatable)",
     )
-    calibrate.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    calibrate.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
     calibrate.add_argument(
         "--json",
         type=Path,
@@ -132,7 +139,7 @@ def _add_run_parser(commands: argparse._SubParsersAction) -> None:
     )
     run.add_argument("--method", choices=METHODS, default=RunOptions.method)
     run.add_argument("--refine", choices=REFINE_CHOICES, default=RunOptions.refine)
-    run.add_argument("--seed", type=int, default=0)
+    run.add_argument("--seed", type=seed, default=0)
     run.add_argument("--database", type=Path, help="start from this database (it is copied)")
     run.add_argument(
         "--model",
@@ -165,7 +172,7 @@ def _add_demo_parser(commands: argparse._SubParsersAction) -> None:
     demo = commands.add_parser(
         "demo", help="calibrate a synthetic database with a known camera (no download)"
     )
-    demo.add_argument("--seed", type=int, default=0)
+    demo.add_argument("--seed", type=seed, default=0)
     demo.add_argument("--method", choices=METHODS, default="msac-opt")
     demo.add_argument("--keep", type=Path, metavar="DIR", help="keep the demo database in DIR")
 
@@ -400,6 +407,24 @@ def _glog_cannot_take_sigterm(watch: _InterruptWatch, in_main_thread: bool) -> I
         signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
 
 
+def _log_warning(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: object = None,
+    line: str | None = None,
+) -> None:
+    """Python warnings (numpy's RuntimeWarnings, ...) go to the package log (-v).
+
+    stderr carries one ``error:`` line or the tool's own ``warning:`` lines only; a
+    numerical warning says nothing the result's checks do not say better.
+    """
+    from .common.log import logger
+
+    logger.info("%s: %s (%s:%d)", category.__name__, message, filename, lineno)
+
+
 def _interrupted(exc: BaseException, signum: int | None = None) -> int:
     """Print the one line for an interrupted run; its exit status (128 + the signal).
 
@@ -410,7 +435,7 @@ def _interrupted(exc: BaseException, signum: int | None = None) -> int:
     word = "interrupted" if signum == signal.SIGINT else "terminated"
     if signum == signal.SIGHUP:
         detail = f" (hangup){detail}"
-    print(f"error: {word}{detail}", file=sys.stderr)
+    print(one_line(f"error: {word}{detail}"), file=sys.stderr)
     return 128 + int(signum)
 
 
@@ -431,19 +456,21 @@ def main(argv: list[str] | None = None) -> int:
             _configure_logging(args.verbose)
         if watch.received:  # a Ctrl-C that an import swallowed (ImportError fallbacks)
             raise KeyboardInterrupt
-        return _dispatch(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _log_warning  # numerical warnings: -v, not stderr
+            return _dispatch(args)
     except KeyboardInterrupt as exc:
         return _interrupted(exc, watch.signum)
     except CalibrationError as exc:
         if watch.received:
             return _interrupted(exc, watch.signum)
-        print(f"error: {exc}", file=sys.stderr)
+        print(one_line(f"error: {exc}"), file=sys.stderr)
         return EXIT_INPUT_ERROR
     except OSError as exc:
         if watch.received:
             return _interrupted(exc, watch.signum)
         where = f": {exc.filename}" if exc.filename is not None else ""
-        print(f"error: {exc.strerror or exc}{where}", file=sys.stderr)
+        print(one_line(f"error: {exc.strerror or exc}{where}"), file=sys.stderr)
         return EXIT_INPUT_ERROR
     except Exception as exc:
         if watch.received:

@@ -128,6 +128,14 @@ def _sqlite_error(exc: sqlite3.Error, path: Path, action: str = "read") -> Calib
         return CalibrationError(f"cannot {action} database: no space left on the device: {path}")
     if "I/O error" in text:
         return CalibrationError(f"cannot {action} database: disk I/O error: {path}")
+    journal = _sidecar(path, "-journal")
+    if journal.is_file() and journal.stat().st_size > 0:
+        return CalibrationError(
+            f"cannot {action} database: it has a hot rollback journal {journal} (a process "
+            "was killed while writing it); open it once with write access, e.g. "
+            f"sqlite3 {path} 'PRAGMA quick_check', so that SQLite rolls that change back: "
+            f"{path} ({text})"
+        )
     return CalibrationError(f"cannot {action} database (truncated or corrupt?): {path} ({text})")
 
 
@@ -360,6 +368,46 @@ def _verified_pairs(
     return skipped
 
 
+#: Blobs pycolmap reads with the shape stored next to them: (table, bytes per value).
+_SHAPED_BLOBS = (("keypoints", 4), ("two_view_geometries", 4))
+
+
+def _check_blob_shapes(snapshot: Path, path: Path) -> None:
+    """Refuse blobs whose stored shape does not match their size (pycolmap trusts it).
+
+    A negative or too large ``rows`` makes pycolmap allocate without bound
+    (``std::bad_alloc``); a short blob is read past its end.
+    """
+    con = sqlite3.connect(f"{snapshot.resolve().as_uri()}?mode=ro", uri=True)
+    try:
+        for table, itemsize in _SHAPED_BLOBS:
+            row = con.execute(
+                f"SELECT rowid, rows, cols FROM {table} WHERE rows < 0 OR cols < 0 OR "
+                f"(rows > 0 AND cols > 0 AND length(data) IS NOT rows * cols * {itemsize}) "
+                "LIMIT 1"
+            ).fetchone()
+            if row is not None:
+                raise CalibrationError(
+                    f"corrupt database: {table} row {row[0]} claims {row[1]}x{row[2]} values "
+                    f"that its data does not hold: {path}"
+                )
+    except sqlite3.Error as exc:
+        raise _sqlite_error(exc, path) from exc
+    finally:
+        con.close()
+
+
+def _check_keypoints_finite(contents: DatabaseContents, path: Path) -> None:
+    """Refuse NaN or infinite keypoint coordinates (they poison every tensor they touch)."""
+    for image_id, xy in contents.keypoints.items():
+        if not np.all(np.isfinite(xy)):
+            bad = int(np.count_nonzero(~np.all(np.isfinite(xy), axis=1)))
+            raise CalibrationError(
+                f"corrupt database: {bad} keypoint(s) of image {image_id} "
+                f"({contents.image_names[image_id]}) are NaN or infinite: {path}"
+            )
+
+
 def _read_snapshot(
     snapshot: Path, path: Path, fundamentals: bool = False
 ) -> tuple[DatabaseContents, Counter[str]]:
@@ -369,6 +417,7 @@ def _read_snapshot(
         The contents and the pairs left out by reason (see :func:`_verified_pairs`).
     """
     contents = DatabaseContents()
+    _check_blob_shapes(snapshot, path)
     try:
         with pycolmap.Database.open(str(snapshot)) as db:
             for cam in db.read_all_cameras():
@@ -381,9 +430,10 @@ def _read_snapshot(
             pair_ids, geometries = db.read_two_view_geometries()
     except CalibrationError:
         raise
-    except (RuntimeError, ValueError) as exc:
+    except (RuntimeError, ValueError, MemoryError) as exc:
         first_line = (str(exc).strip().splitlines() or [type(exc).__name__])[-1]
         raise CalibrationError(f"cannot read COLMAP database {path}: {first_line}") from exc
+    _check_keypoints_finite(contents, path)
     missing = sorted(set(contents.image_camera.values()) - set(contents.cameras))
     if missing:
         raise CalibrationError(

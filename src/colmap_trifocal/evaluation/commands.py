@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 from pathlib import Path
 
 import numpy as np
 
+from ..common.arguments import finite_float, seed
 from ..common.errors import CalibrationError
 from ..datasets import DATASET_KINDS, read_scene
 from .protocol import DEFAULT_METHODS, EVALUATION_METHODS, EvaluationOptions, evaluate_scene
@@ -51,14 +53,16 @@ def add_synthetic_parser(commands: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--runs", type=int, default=100)
     parser.add_argument("--points", type=int, default=500, help="tracks per scene")
-    parser.add_argument("--perturbation", type=float, default=5.0, help="prior ±%% (default 5)")
+    parser.add_argument(
+        "--perturbation", type=finite_float, default=5.0, help="prior ±%% (default 5)"
+    )
     parser.add_argument("--outliers", type=float, default=0.0, help="outlier track fraction")
     parser.add_argument("--methods", default=",".join(SYNTHETIC_METHODS))
     _add_common(parser, "synthetic")
 
 
 def _add_common(parser: argparse.ArgumentParser, stem: str) -> None:
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=seed, default=0)
     parser.add_argument(
         "--output",
         type=Path,
@@ -79,6 +83,8 @@ def _numbers(text: str, name: str, kind: type = float) -> list:
         ) from None
     if not values:
         raise CalibrationError(f"{name} is empty")
+    if not all(math.isfinite(v) for v in values):
+        raise CalibrationError(f"invalid {name} {text!r}: values must be finite")
     return values
 
 
@@ -91,8 +97,10 @@ def _ranges(text: str) -> tuple[tuple[float, float], ...]:
             raise CalibrationError(
                 f"malformed --perturbation {part!r}: expected LOW-HIGH in percent, e.g. 0-5"
             ) from None
-        if not 0 <= low <= high:
-            raise CalibrationError(f"invalid --perturbation {part!r}: need 0 <= LOW <= HIGH")
+        if not 0 <= low <= high < 100:
+            raise CalibrationError(
+                f"invalid --perturbation {part!r}: need 0 <= LOW <= HIGH < 100 (percent)"
+            )
         ranges.append((low, high))
     return tuple(ranges)
 
@@ -180,6 +188,8 @@ def run_synthetic(args: argparse.Namespace, progress: bool) -> int:
     noise_levels = _numbers(args.noise, "--noise")
     if min(noise_levels) < 0:
         raise CalibrationError("--noise levels must be >= 0")
+    if not 0 <= args.perturbation < 100:
+        raise CalibrationError("--perturbation must be in [0, 100) percent")
     if args.points < 10:
         raise CalibrationError("--points must be at least 10")
     if not 0 <= args.outliers < 1:
