@@ -232,7 +232,9 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     json_to_stdout = args.json is not None and _is_stdout(args.json)
     if args.json is not None and not json_to_stdout:
         _check_output(args.json, "--json")
-        refuse_overwriting_input(args.json, _database_files(args.database), "--json", "database")
+        refuse_overwriting_input(
+            args.json, _database_files(args.database), "--json", "the database"
+        )
     if args.write:  # refuse a read-only database now, not after the calibration
         check_writable(args.database)
     results = calibrate_database(args.database, options)
@@ -300,7 +302,9 @@ def _run_pipeline(args: argparse.Namespace) -> int:
     if args.png is not None:
         _check_output(args.png, "--png")
         if args.database is not None:
-            refuse_overwriting_input(args.png, _database_files(args.database), "--png", "database")
+            refuse_overwriting_input(
+                args.png, _database_files(args.database), "--png", "the database"
+            )
     options = RunOptions(
         max_image_size=args.max_image_size,
         matcher=args.matcher,

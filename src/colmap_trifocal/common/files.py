@@ -24,7 +24,7 @@ def file_identity(path: Path | str) -> tuple[int, int] | None:
 
 
 def refuse_overwriting_input(
-    output: Path | str, inputs: Iterable[Path | str], option: str, what: str = "input"
+    output: Path | str, inputs: Iterable[Path | str], option: str, what: str = "an input"
 ) -> None:
     """Refuse an output path that is one of the command's input files.
 
@@ -40,9 +40,7 @@ def refuse_overwriting_input(
     for path in inputs:
         if file_identity(path) == target:
             same = "" if os.fspath(path) == os.fspath(output) else f" (the same file as {path})"
-            raise CalibrationError(
-                f"{option} {output} is the {what}{same}: refusing to overwrite it"
-            )
+            raise CalibrationError(f"{option} {output} is {what}{same}: refusing to overwrite it")
 
 
 def write_text_atomically(path: Path, text: str) -> None:

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..common.arguments import finite_float, seed
 from ..common.errors import CalibrationError
+from ..common.files import file_identity, refuse_overwriting_input
 from ..datasets import DATASET_KINDS, read_scene
 from .protocol import DEFAULT_METHODS, EVALUATION_METHODS, EvaluationOptions, evaluate_scene
 from .records import RunRecord
@@ -122,6 +123,37 @@ def _check_outputs(args: argparse.Namespace) -> None:
         raise CalibrationError(f"cannot write --json: folder {args.json.parent} does not exist")
 
 
+def _refuse_overwriting_dataset(args: argparse.Namespace, stem: str) -> None:
+    """Refuse outputs that are files of the dataset (or of the cache) being evaluated.
+
+    Every regular file below ``PATH`` and ``--cache`` counts as an input, except files
+    no dataset reader reads: JSON files and this command's own outputs
+    (``evaluation.csv``, ``.md``, ``.png``), which a rerun replaces. Compared by file
+    identity, so symlinks and hard links are caught.
+    """
+    own = {f"{stem}.csv", f"{stem}.md", f"{stem}.png"}
+    outputs = {"--output": [args.output / name for name in sorted(own)], "--json": [args.json]}
+    targets = {
+        file_identity(path): (option, path)
+        for option, paths in outputs.items()
+        for path in paths
+        if path is not None and file_identity(path) is not None
+    }
+    if not targets:
+        return
+    for folder in (args.path, args.cache):
+        if folder is None or not Path(folder).exists():
+            continue
+        files = [Path(folder)] if Path(folder).is_file() else Path(folder).rglob("*")
+        for path in files:
+            if path.suffix.lower() == ".json" or path.name in own or not path.is_file():
+                continue
+            hit = targets.get(file_identity(path))
+            if hit is not None:
+                option, output = hit
+                refuse_overwriting_input(output, [path], option, "a file of the dataset")
+
+
 def _finish(records: list[RunRecord], args: argparse.Namespace, stem: str, title: str) -> None:
     try:
         paths = write_outputs(records, args.output, stem, title)
@@ -154,6 +186,7 @@ def scenes_at(kind: str, path: Path) -> list:
 
 def run_evaluate(args: argparse.Namespace, progress: bool) -> int:
     _check_outputs(args)
+    _refuse_overwriting_dataset(args, "evaluation")
     options = EvaluationOptions(
         image_counts=tuple(_numbers(args.images, "--images", int)),
         perturbations=_ranges(args.perturbation),

@@ -116,7 +116,7 @@ def check_inputs_survive(workspace: Path, options: RunOptions) -> None:
         if given is None:
             continue
         for output in outputs:
-            refuse_overwriting_input(output, [given], "WORKSPACE output", f"{option} input")
+            refuse_overwriting_input(output, [given], "WORKSPACE output", f"the {option} input")
             if output.is_dir() and _inside(given, output):
                 raise CalibrationError(
                     f"{option} {given} is inside the workspace output {output}: "
