@@ -22,6 +22,7 @@ import signal
 import sqlite3
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -62,6 +63,15 @@ def run_cli(
 
 def sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def tree(folder: Path) -> dict[str, str]:
+    """Every file below ``folder`` (symlinks as their target's name): its sha256."""
+    return {
+        str(p.relative_to(folder)): (f"-> {os.readlink(p)}" if p.is_symlink() else sha256(p))
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() or p.is_symlink()
+    }
 
 
 def listing(folder: Path) -> list[str]:
@@ -162,6 +172,9 @@ class Case:
     preexec_fn: Callable[[], None] | None = field(default=None, repr=False)
     #: Make the database read-only (chmod 444) before running.
     read_only: bool = False
+    #: The command line after the program's name, from (folder, made path, workspace);
+    #: default ``calibrate PATH *args``. A workspace given to ``run`` must stay absent.
+    argv: Callable[[Path, Path, Path], tuple] | None = field(default=None, repr=False)
 
 
 def _copy(folder: Path, good: Path) -> Path:
@@ -303,6 +316,114 @@ def _fisheye(folder: Path, _good: Path) -> Path:
     return path
 
 
+# ----- issue 15: helpers of the rows below
+
+
+def _blob_edit(sql: str, *values: object) -> Callable[[Path, Path], Path]:
+    """A copy of the good database with one UPDATE applied (sqlite3, no pycolmap)."""
+
+    def make(folder: Path, good: Path) -> Path:
+        path = _copy(folder, good)
+        con = sqlite3.connect(path)
+        con.execute(sql, values)
+        con.commit()
+        con.close()
+        return path
+
+    return make
+
+
+def _keypoint_value(value: float) -> Callable[[Path, Path], Path]:
+    """Keypoint 5 of image 1 gets ``value`` as its x coordinate."""
+
+    def make(folder: Path, good: Path) -> Path:
+        path = _copy(folder, good)
+        con = sqlite3.connect(path)
+        rows, cols, blob = con.execute(
+            "SELECT rows, cols, data FROM keypoints WHERE image_id = 1"
+        ).fetchone()
+        xy = np.frombuffer(blob, np.float32).reshape(rows, cols).copy()
+        xy[5, 0] = value
+        con.execute("UPDATE keypoints SET data = ? WHERE image_id = 1", (xy.tobytes(),))
+        con.commit()
+        con.close()
+        return path
+
+    return make
+
+
+def _params(*values: float) -> Callable[[Path, Path], Path]:
+    return _blob_edit("UPDATE cameras SET params = ?", np.array(values, "<f8").tobytes())
+
+
+def _link(kind: str) -> Callable[[Path, Path], Path]:
+    """A copy of the good database and ``out.json``, a symlink or a hard link to it."""
+
+    def make(folder: Path, good: Path) -> Path:
+        path = _copy(folder, good)
+        (os.symlink if kind == "symlink" else os.link)(path, folder / "out.json")
+        return path
+
+    return make
+
+
+def _hot_journal(folder: Path, good: Path) -> Path:
+    """A database whose writer was killed mid-transaction: a hot ``-journal`` next to it."""
+    path = _rollback_journal_copy(folder, good)
+    script = (
+        "import os, sqlite3, sys\n"
+        "con = sqlite3.connect(sys.argv[1], isolation_level=None)\n"
+        "con.execute('PRAGMA cache_size=1')\n"
+        "con.execute('BEGIN')\n"
+        "con.execute('UPDATE keypoints SET data = data')\n"
+        "con.execute('UPDATE descriptors SET data = zeroblob(length(data))')\n"
+        "os._exit(0)\n"
+    )
+    subprocess.run([sys.executable, "-c", script, str(path)], check=True)
+    assert path.with_name("database.db-journal").stat().st_size > 0
+    return path
+
+
+_MODEL: dict[str, bytes] = {}
+
+
+def _model(folder: Path, cut: dict[str, int | None] | None = None, images: bool = True) -> Path:
+    """A pycolmap synthetic model in ``folder/sparse/0`` (and ``folder/images`` if asked);
+    ``cut[name] = n`` keeps the first n bytes of ``name.bin`` (None: random bytes)."""
+    if not _MODEL:
+        with tempfile.TemporaryDirectory() as tmp:
+            reconstruction = synthesize(Path(tmp) / "model.db", "PINHOLE", PARAMS)
+            reconstruction.write(tmp)
+            _MODEL.update({p.name: p.read_bytes() for p in Path(tmp).glob("*.bin")})
+    model = folder / "sparse" / "0"
+    model.mkdir(parents=True)
+    if images:
+        (folder / "images").mkdir()
+    rng = np.random.default_rng(3)
+    for name, data in _MODEL.items():
+        size = (cut or {}).get(name.removesuffix(".bin"), len(data))
+        data = rng.bytes(5000) if size is None else data[:size]
+        (model / name).write_bytes(data)
+    return model
+
+
+def _models(cut: dict[str, int | None] | None = None, images: bool = True):
+    return lambda folder, _good: _model(folder, cut, images)
+
+
+def _run(*args: object) -> Callable[[Path, Path, Path], tuple]:
+    """``run IMAGES WORKSPACE --database PATH ARGS`` (the folder as IMAGES)."""
+    return lambda folder, path, workspace: ("run", folder, workspace, "--database", path, *args)
+
+
+def _database_in_workspace(folder: Path, good: Path) -> Path:
+    """An earlier run's workspace (the folder) with a model in sparse/0; the database in
+    another folder of it."""
+    _model(folder, images=False)
+    (folder / "input").mkdir()
+    return _copy(folder / "input", good)
+
+
 CASES: dict[str, Case] = {
     "missing path": Case(lambda folder, _: folder / "nope.db", "database not found"),
     "directory": Case(lambda folder, _: folder, "is a directory"),
@@ -371,6 +492,144 @@ CASES: dict[str, Case] = {
     "no space for the temporary copy": Case(
         _copy, "cannot copy the database to the temporary folder", preexec_fn=limit_file_size
     ),
+    # ----- issue 15, item 2: an output that is the input database
+    "--json is the database": Case(
+        _copy, "--json", argv=lambda f, p, w: ("calibrate", p, "--json", p)
+    ),
+    "--json is the database, with --write": Case(
+        _copy,
+        "is the database: refusing",
+        argv=lambda f, p, w: ("calibrate", p, "--json", p, "--write"),
+    ),
+    "--json is a symlink to the database": Case(
+        _link("symlink"),
+        "(the same file as",
+        argv=lambda f, p, w: ("calibrate", p, "--json", f / "out.json"),
+    ),
+    "--json is a hard link to the database": Case(
+        _link("hardlink"),
+        "(the same file as",
+        argv=lambda f, p, w: ("calibrate", p, "--json", f / "out.json", "--write"),
+    ),
+    "run --png is the --database": Case(_copy, "--png", argv=_run("--png", "{path}")),
+    "evaluate --json is a model file": Case(
+        _models(),
+        "is a file of the dataset",
+        argv=lambda f, p, w: ("evaluate", "colmap", p, "--json", p / "points3D.bin"),
+    ),
+    # ----- item 3: run never deletes its inputs
+    "run --database is WORKSPACE/database.db, --overwrite": Case(
+        _copy,
+        "is the --database input",
+        argv=lambda f, p, w: ("run", f, f, "--database", p, "--overwrite"),
+    ),
+    "run --model inside WORKSPACE/sparse, --overwrite": Case(
+        _database_in_workspace,
+        "inside the workspace output",
+        argv=lambda f, p, w: (
+            "run",
+            f,
+            f,
+            "--database",
+            p,
+            "--model",
+            f / "sparse" / "0",
+            "--overwrite",
+        ),
+    ),
+    # ----- item 5: tracebacks that become one line
+    "keypoint NaN": Case(_keypoint_value(np.nan), "keypoint(s) of image 1"),
+    "keypoint inf": Case(_keypoint_value(np.inf), "are NaN or infinite"),
+    "keypoints with a negative row count": Case(
+        _blob_edit("UPDATE keypoints SET rows = -5 WHERE image_id = 1"),
+        "corrupt database: keypoints",
+    ),
+    "stored params NaN": Case(_params(np.nan, 1250, 530, 370), "stored params (nan,"),
+    "stored fx = fy = 0": Case(_params(0, 0, 530, 370), "give --prior or --no-prior"),
+    "prior of 1e-300": Case(
+        _copy, "invalid starting intrinsics from --prior", ("--prior", "1e-300,1e-300,530,370")
+    ),
+    "prior principal point 1e308": Case(
+        _copy, "principal point within", ("--prior", "525,525,1e308,-1e308")
+    ),
+    "0x0 camera with --no-prior": Case(
+        _blob_edit("UPDATE cameras SET width = 0, height = 0"), "image size of 0x0", ("--no-prior",)
+    ),
+    "--seed -1": Case(_copy, "seed must be in [0,", ("--seed", "-1")),
+    "run --model missing": Case(
+        _copy, "model folder not found", argv=_run("--model", "{folder}/nope")
+    ),
+    "run --model is a file": Case(_copy, "model folder not found", argv=_run("--model", "{path}")),
+    "run --model garbage": Case(
+        lambda f, g: _copy(_model(f, {"points3D": None}).parent.parent, g),
+        "COLMAP model file",
+        argv=_run("--model", "{folder}/sparse/0"),
+    ),
+    "run --camera-model FOO": Case(
+        _copy,
+        "--camera-model: invalid choice: 'FOO'",
+        argv=lambda f, p, w: ("run", f, w, "--camera-model", "FOO"),
+    ),
+    "run --seed -1": Case(_copy, "seed must be", argv=_run("--seed", "-1")),
+    "show: truncated images.bin": Case(
+        _models({"images": 3000}),
+        "truncated COLMAP model file",
+        argv=lambda f, p, w: ("show", p, "--png", f / "x.png"),
+    ),
+    "evaluate colmap: garbage points3D.bin": Case(
+        _models({"points3D": None}),
+        "points3D.bin",
+        argv=lambda f, p, w: ("evaluate", "colmap", p, "--runs", "1"),
+    ),
+    "evaluate colmap: no ../../images": Case(
+        _models(images=False),
+        "no image folder for the COLMAP model",
+        argv=lambda f, p, w: ("evaluate", "colmap", p, "--runs", "1"),
+    ),
+    "synthetic --seed -1": Case(
+        _copy, "seed must be", argv=lambda f, p, w: ("synthetic", "--seed", "-1")
+    ),
+    "synthetic --noise nan": Case(
+        _copy, "invalid --noise 'nan'", argv=lambda f, p, w: ("synthetic", "--noise", "nan")
+    ),
+    "synthetic --perturbation nan": Case(
+        _copy,
+        "expected a finite number",
+        argv=lambda f, p, w: ("synthetic", "--perturbation", "nan"),
+    ),
+    "synthetic --perturbation -500": Case(
+        _copy, "[0, 100) percent", argv=lambda f, p, w: ("synthetic", "--perturbation", "-500")
+    ),
+    # ----- item 6: models whose counts do not match their size (pycolmap grew without bound)
+    "show: empty points3D.bin": Case(
+        _models({"points3D": 0}),
+        "(0 bytes)",
+        argv=lambda f, p, w: ("show", p, "--png", f / "x.png"),
+    ),
+    "show: truncated points3D.bin": Case(
+        _models({"points3D": 20000}),
+        "need 39608 bytes, the file has 20000",
+        argv=lambda f, p, w: ("show", p, "--png", f / "x.png"),
+    ),
+    "show: points3D.bin with its count only": Case(
+        _models({"points3D": 8}),
+        "the file has 8",
+        argv=lambda f, p, w: ("show", p, "--png", f / "x.png"),
+    ),
+    # ----- item 8: one line means one line
+    "newline in the path": Case(
+        lambda f, _: f / "new\nline.db", "data/new\\nline.db"  # escaped: backslash, n
+    ),
+    "RuntimeWarning: --prior 1e308": Case(
+        _copy, "invalid starting intrinsics", ("--prior", "1e308,1e308,530,370")
+    ),
+    "RuntimeWarning: stored focal 1e300": Case(
+        _params(1e300, 1e300, 530, 370), "from the stored camera"
+    ),
+    "0x0 camera (exit 0 before)": Case(
+        _blob_edit("UPDATE cameras SET width = 0, height = 0"), "image size of 0x0"
+    ),
+    "hot rollback journal": Case(_hot_journal, "hot rollback journal"),
 }
 
 
@@ -382,9 +641,15 @@ def test_bad_input(name: str, good_database: Path, tmp_path: Path) -> None:
     path = case.make(folder, good_database)
     if case.read_only:
         path.chmod(0o444)
-    before = sha256(path) if path.is_file() else None
-    files_before = listing(folder)
-    args = ("calibrate", path, *case.args)
+    before = tree(folder)
+    workspace = tmp_path / "ws"
+    if case.argv is None:
+        args = ("calibrate", path, *case.args)
+    else:  # "{path}" and "{folder}" in a row's arguments stand for the made path and folder
+        args = tuple(
+            str(a).format(path=path, folder=folder) if "{" in str(a) else a
+            for a in case.argv(folder, path, workspace)
+        )
     if case.lock is not None:
         statement, journal_mode = case.lock
         with holding_lock(path, statement, journal_mode):
@@ -392,12 +657,11 @@ def test_bad_input(name: str, good_database: Path, tmp_path: Path) -> None:
     else:
         result = run_cli(*args, preexec_fn=case.preexec_fn)
     assert_one_error_line(result, case.fragment, case.status)
-    if before is not None:
-        assert sha256(path) == before
-    assert listing(folder) == files_before
+    assert tree(folder) == before  # every file byte-identical, none added or removed
+    assert not workspace.exists()  # refused before the workspace was made
     # A results table only if computed: outputs (--json, then --write) come last, so a
     # failing one does not lose the estimate.
-    assert result.stdout == "" or "--json" in case.args or "--write" in case.args
+    assert result.stdout == "" or "--json" in args or "--write" in args
 
 
 def test_jittered_copies_determine_nothing_and_write_nothing(tmp_path: Path) -> None:
