@@ -618,7 +618,8 @@ CASES: dict[str, Case] = {
     ),
     # ----- item 8: one line means one line
     "newline in the path": Case(
-        lambda f, _: f / "new\nline.db", "data/new\\nline.db"  # escaped: backslash, n
+        lambda f, _: f / "new\nline.db",
+        "data/new\\nline.db",  # escaped: backslash, n
     ),
     "RuntimeWarning: --prior 1e308": Case(
         _copy, "invalid starting intrinsics", ("--prior", "1e308,1e308,530,370")
@@ -978,3 +979,94 @@ def test_signal_at_any_time_during_write(
         lines = stderr.splitlines()
         assert len(lines) == 1 and lines[0].startswith(line), (delay, stderr)
     assert states[0] == "untouched" and states[-1] == "written", states
+
+
+# --------------------------------------------------------------------------- issue 15: outputs
+
+QUICK_READ = ("--prior", PRIOR, "--max-triplets", "3", "--no-focal-search")
+
+
+def _table_and_json(stdout: str, stderr: str) -> list[dict]:
+    """The JSON (all of stdout) and a check that the results table went to stderr."""
+    assert stderr.splitlines()[0].split()[:2] == ["camera", "model"], stderr
+    return json.loads(stdout)
+
+
+@pytest.mark.parametrize("target", ["-", "/dev/stdout"])
+def test_json_to_stdout_on_a_pipe(target: str, database_copy: Path) -> None:
+    """``--json -`` (and ``/dev/stdout`` on a pipe, which failed after the whole run):
+    stdout is the JSON alone, the table goes to stderr (issue 15, item 7)."""
+    result = run_cli("calibrate", database_copy, *QUICK_READ, "--json", target)
+    assert result.returncode == 0, result.stderr
+    (entry,) = _table_and_json(result.stdout, result.stderr)
+    np.testing.assert_allclose([entry[k] for k in ("fx", "fy", "cx", "cy")], PARAMS, rtol=1e-4)
+
+
+def test_json_to_stdout_redirected_to_a_file(database_copy: Path, tmp_path: Path) -> None:
+    """``--json /dev/stdout`` with stdout redirected to a file: the file holds the JSON and
+    the table is not lost (it went to stderr; before, the JSON replaced the file)."""
+    out = tmp_path / "out.txt"
+    with out.open("w") as stream:
+        result = subprocess.run(
+            [sys.executable, "-m", "colmap_trifocal.cli", "calibrate", str(database_copy)]
+            + [*QUICK_READ, "--json", "/dev/stdout"],
+            stdout=stream,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=300,
+        )
+    assert result.returncode == 0, result.stderr
+    assert len(_table_and_json(out.read_text(), result.stderr)) == 1
+
+
+def test_repeated_camera_id_is_calibrated_once(database_copy: Path, tmp_path: Path) -> None:
+    """``--camera-id 1 --camera-id 1``: one result, not two (issue 15, item 8)."""
+    out = tmp_path / "result.json"
+    result = run_cli(
+        "calibrate",
+        database_copy,
+        *QUICK_READ,
+        "--camera-id",
+        "1",
+        "--camera-id",
+        "1",
+        "--json",
+        out,
+    )
+    assert result.returncode == 0, result.stderr
+    assert [entry["camera_id"] for entry in json.loads(out.read_text())] == [1]
+    assert len(result.stdout.splitlines()) == 2  # the header and one camera
+
+
+def test_run_copies_what_is_still_in_the_wal(good_database: Path, tmp_path: Path) -> None:
+    """``run --database`` copies with SQLite's backup API: committed rows still in the
+    ``-wal`` reach the workspace's copy (a copy of the main file lost the verified
+    matches, and mapping found none; issue 15, item 4). The input stays as it was."""
+    source = tmp_path / "input" / "database.db"
+    source.parent.mkdir()
+    shutil.copyfile(good_database, source)
+    con = sqlite3.connect(source, isolation_level=None)
+    try:
+        assert con.execute("PRAGMA journal_mode=WAL").fetchone() == ("wal",)
+        rows = con.execute("SELECT * FROM two_view_geometries").fetchall()
+        con.execute("DELETE FROM two_view_geometries")
+        con.execute("PRAGMA wal_checkpoint(TRUNCATE)")  # the main file has no matches now
+        con.execute("PRAGMA wal_autocheckpoint=0")
+        marks = ",".join("?" * len(rows[0]))
+        con.executemany(f"INSERT INTO two_view_geometries VALUES ({marks})", rows)
+        wal = source.with_name("database.db-wal")
+        assert wal.stat().st_size > 0  # committed, and only in the -wal while con is open
+        before = sha256(source), sha256(wal)
+        workspace = tmp_path / "ws"
+        result = run_cli("run", tmp_path / "no-images", workspace, "--database", source)
+        assert (sha256(source), sha256(wal)) == before
+    finally:
+        con.close()
+    assert result.returncode == 0, result.stderr
+    copy = sqlite3.connect(workspace / "database.db")
+    try:
+        assert copy.execute("SELECT COUNT(*) FROM two_view_geometries").fetchone() == (len(rows),)
+    finally:
+        copy.close()
+    report = json.loads((workspace / "report.json").read_text())
+    assert report["num_registered_images"] == 6
