@@ -42,7 +42,9 @@ def main() -> None:
     shutil.rmtree(args.out, ignore_errors=True)
     model.mkdir(parents=True)
     options = pycolmap.SyntheticDatasetOptions(
-        num_rigs=1, num_cameras_per_rig=1, num_frames_per_rig=args.frames,
+        num_rigs=1,
+        num_cameras_per_rig=1,
+        num_frames_per_rig=args.frames,
         num_points3D=args.points,
     )
     with pycolmap.Database.open(str(args.out / "database.db")) as db:

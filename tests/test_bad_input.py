@@ -583,7 +583,7 @@ CASES: dict[str, Case] = {
     ),
     "evaluate colmap: no ../../images": Case(
         _models(images=False),
-        "no image folder for the COLMAP model",
+        ": image folder",
         argv=lambda f, p, w: ("evaluate", "colmap", p, "--runs", "1"),
     ),
     "synthetic --seed -1": Case(

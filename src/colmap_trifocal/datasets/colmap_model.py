@@ -28,12 +28,6 @@ _MODEL_FOLDERS = {"sparse", "model", "models"}
 def read_colmap_scene(path: Path | str, image_dir: Path | str | None = None) -> DatasetScene:
     """The registered images of a COLMAP model folder, sorted by name."""
     model = require_dir(path, "COLMAP model folder")
-    images_dir = Path(image_dir) if image_dir is not None else default_image_dir(model)
-    if not images_dir.is_dir():
-        raise CalibrationError(
-            f"no image folder for the COLMAP model {model}: {images_dir} does not exist"
-            + ("" if image_dir is not None else " (nor ../../images)")
-        )
     check_binary_model(model)  # before pycolmap, which trusts the counts in the files
     try:
         reconstruction = pycolmap.Reconstruction(str(model))
@@ -68,7 +62,7 @@ def read_colmap_scene(path: Path | str, image_dir: Path | str | None = None) -> 
     return DatasetScene(
         kind="colmap",
         name=_scene_name(model),
-        image_dir=images_dir,
+        image_dir=Path(image_dir) if image_dir is not None else default_image_dir(model),
         views=views,
     )
 

@@ -203,9 +203,13 @@ def run_evaluate(args: argparse.Namespace, progress: bool) -> int:
     if min(options.image_counts) < 3:
         raise CalibrationError("--images: every sequence needs at least 3 images")
     start = time.perf_counter()
-    records = [
-        r for scene in scenes_at(args.kind, args.path) for r in evaluate_scene(scene, options)
-    ]
+    scenes = scenes_at(args.kind, args.path)
+    for scene in scenes:  # all checked before the first (long) evaluation
+        if not Path(scene.image_dir).is_dir():
+            raise CalibrationError(
+                f"scene {scene.name}: image folder {scene.image_dir} does not exist"
+            )
+    records = [r for scene in scenes for r in evaluate_scene(scene, options)]
     _finish(records, args, "evaluation", f"{args.kind}: {args.runs} runs")
     print(f"{len(records)} results in {time.perf_counter() - start:.0f} s")
     return 0
