@@ -512,6 +512,14 @@ CASES: dict[str, Case] = {
         argv=lambda f, p, w: ("calibrate", p, "--json", f / "out.json", "--write"),
     ),
     "run --png is the --database": Case(_copy, "--png", argv=_run("--png", "{path}")),
+    "show --png is a model file": Case(
+        _models(), "is a file of MODEL", argv=lambda f, p, w: ("show", p, "--png", p / "images.bin")
+    ),
+    "run --png is a file of --model": Case(
+        lambda f, g: _copy(_model(f).parent.parent, g),
+        "is a file of --model",
+        argv=_run("--model", "{folder}/sparse/0", "--png", "{folder}/sparse/0/points3D.bin"),
+    ),
     "evaluate --json is a model file": Case(
         _models(),
         "is a file of the dataset",

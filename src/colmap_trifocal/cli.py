@@ -289,6 +289,11 @@ def _is_stdout(path: Path) -> bool:
     return file_identity(path) == (st.st_dev, st.st_ino)
 
 
+def _files_in(folder: Path) -> list[Path]:
+    """The files directly in ``folder`` (none if it is not a folder)."""
+    return [p for p in folder.iterdir() if p.is_file()] if folder.is_dir() else []
+
+
 def _database_files(database: Path) -> list[Path]:
     """The database and SQLite's companion files (which no output may replace either)."""
     return [database, *(database.with_name(database.name + s) for s in ("-wal", "-journal"))]
@@ -305,6 +310,8 @@ def _run_pipeline(args: argparse.Namespace) -> int:
             refuse_overwriting_input(
                 args.png, _database_files(args.database), "--png", "the database"
             )
+        if args.model is not None:
+            refuse_overwriting_input(args.png, _files_in(args.model), "--png", "a file of --model")
     options = RunOptions(
         max_image_size=args.max_image_size,
         matcher=args.matcher,
@@ -340,6 +347,8 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "show":
         from .reconstruction.visualize import show  # open3d is imported only for this command
 
+        if args.png is not None:
+            refuse_overwriting_input(args.png, _files_in(args.model), "--png", "a file of MODEL")
         written = show(args.model, args.png)
         if written is not None:
             print(f"wrote {written}")
