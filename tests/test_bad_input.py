@@ -1,14 +1,16 @@
 """Bad input through the real command line: one table, one ``error:`` line each, data untouched.
 
-Every row builds its input (with pycolmap where it is a COLMAP database), runs
-``colmap-trifocal calibrate`` as a subprocess and checks: the exit status (2), exactly
-one stderr line ``error: ...`` containing the row's fragment, no traceback, the
-database byte-identical (sha256) and no file added or removed next to it (no ``.bak``,
-no ``-wal``/``-shm`` left behind).
+Every row builds its input (with pycolmap where it is a COLMAP database or model), runs
+the command line as a subprocess (``calibrate PATH ARGS`` unless the row gives another
+command: ``run``, ``show``, ``evaluate``, ``synthetic``) and checks: the exit status (2),
+exactly one stderr line ``error: ...`` containing the row's fragment, no traceback, every
+file below the row's folder byte-identical (sha256) and none added or removed (no
+``.bak``, no ``-wal``/``-shm`` left behind), and no ``run`` workspace created. The table
+had 31 rows before issue 15 and 70 after (``pytest --collect-only -k "test_bad_input["``).
 
-Ctrl-C during ``--write`` is tested twice: by fault injection in this process (a
-KeyboardInterrupt or a real SIGINT at each step of the write path) and by real SIGINTs
-sent to a subprocess at delays spread over its whole run.
+Ctrl-C (SIGINT), SIGTERM and SIGHUP during ``--write`` are tested twice: by fault
+injection in this process (a KeyboardInterrupt or a real signal at each step of the write
+path) and by real signals sent to a subprocess at delays spread over its whole run.
 """
 
 from __future__ import annotations

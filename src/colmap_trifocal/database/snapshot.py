@@ -23,6 +23,7 @@ Conventions
 from __future__ import annotations
 
 import os
+import shlex
 import shutil
 import sqlite3
 import stat
@@ -133,7 +134,8 @@ def _sqlite_error(exc: sqlite3.Error, path: Path, action: str = "read") -> Calib
         return CalibrationError(
             f"cannot {action} database: it has a hot rollback journal {journal} (a process "
             "was killed while writing it); open it once with write access, e.g. "
-            f"sqlite3 {path} 'PRAGMA quick_check', so that SQLite rolls that change back: "
+            f"sqlite3 {shlex.quote(str(path))} 'PRAGMA quick_check', so that SQLite rolls "
+            "that change back: "
             f"{path} ({text})"
         )
     return CalibrationError(f"cannot {action} database (truncated or corrupt?): {path} ({text})")
