@@ -1,14 +1,16 @@
 """Bad input through the real command line: one table, one ``error:`` line each, data untouched.
 
-Every row builds its input (with pycolmap where it is a COLMAP database), runs
-``colmap-trifocal calibrate`` as a subprocess and checks: the exit status (2), exactly
-one stderr line ``error: ...`` containing the row's fragment, no traceback, the
-database byte-identical (sha256) and no file added or removed next to it (no ``.bak``,
-no ``-wal``/``-shm`` left behind).
+Every row builds its input (with pycolmap where it is a COLMAP database or model), runs
+the command line as a subprocess (``calibrate PATH ARGS`` unless the row gives another
+command: ``run``, ``show``, ``evaluate``, ``synthetic``) and checks: the exit status (2),
+exactly one stderr line ``error: ...`` containing the row's fragment, no traceback, every
+file below the row's folder byte-identical (sha256) and none added or removed (no
+``.bak``, no ``-wal``/``-shm`` left behind), and no ``run`` workspace created. The table
+had 31 rows before issue 15 and 70 after (``pytest --collect-only -k "test_bad_input["``).
 
-Ctrl-C during ``--write`` is tested twice: by fault injection in this process (a
-KeyboardInterrupt or a real SIGINT at each step of the write path) and by real SIGINTs
-sent to a subprocess at delays spread over its whole run.
+Ctrl-C (SIGINT), SIGTERM and SIGHUP during ``--write`` are tested twice: by fault
+injection in this process (a KeyboardInterrupt or a real signal at each step of the write
+path) and by real signals sent to a subprocess at delays spread over its whole run.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import signal
 import sqlite3
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -62,6 +65,15 @@ def run_cli(
 
 def sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def tree(folder: Path) -> dict[str, str]:
+    """Every file below ``folder`` (symlinks as their target's name): its sha256."""
+    return {
+        str(p.relative_to(folder)): (f"-> {os.readlink(p)}" if p.is_symlink() else sha256(p))
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() or p.is_symlink()
+    }
 
 
 def listing(folder: Path) -> list[str]:
@@ -162,6 +174,9 @@ class Case:
     preexec_fn: Callable[[], None] | None = field(default=None, repr=False)
     #: Make the database read-only (chmod 444) before running.
     read_only: bool = False
+    #: The command line after the program's name, from (folder, made path, workspace);
+    #: default ``calibrate PATH *args``. A workspace given to ``run`` must stay absent.
+    argv: Callable[[Path, Path, Path], tuple] | None = field(default=None, repr=False)
 
 
 def _copy(folder: Path, good: Path) -> Path:
@@ -303,6 +318,114 @@ def _fisheye(folder: Path, _good: Path) -> Path:
     return path
 
 
+# ----- issue 15: helpers of the rows below
+
+
+def _blob_edit(sql: str, *values: object) -> Callable[[Path, Path], Path]:
+    """A copy of the good database with one UPDATE applied (sqlite3, no pycolmap)."""
+
+    def make(folder: Path, good: Path) -> Path:
+        path = _copy(folder, good)
+        con = sqlite3.connect(path)
+        con.execute(sql, values)
+        con.commit()
+        con.close()
+        return path
+
+    return make
+
+
+def _keypoint_value(value: float) -> Callable[[Path, Path], Path]:
+    """Keypoint 5 of image 1 gets ``value`` as its x coordinate."""
+
+    def make(folder: Path, good: Path) -> Path:
+        path = _copy(folder, good)
+        con = sqlite3.connect(path)
+        rows, cols, blob = con.execute(
+            "SELECT rows, cols, data FROM keypoints WHERE image_id = 1"
+        ).fetchone()
+        xy = np.frombuffer(blob, np.float32).reshape(rows, cols).copy()
+        xy[5, 0] = value
+        con.execute("UPDATE keypoints SET data = ? WHERE image_id = 1", (xy.tobytes(),))
+        con.commit()
+        con.close()
+        return path
+
+    return make
+
+
+def _params(*values: float) -> Callable[[Path, Path], Path]:
+    return _blob_edit("UPDATE cameras SET params = ?", np.array(values, "<f8").tobytes())
+
+
+def _link(kind: str) -> Callable[[Path, Path], Path]:
+    """A copy of the good database and ``out.json``, a symlink or a hard link to it."""
+
+    def make(folder: Path, good: Path) -> Path:
+        path = _copy(folder, good)
+        (os.symlink if kind == "symlink" else os.link)(path, folder / "out.json")
+        return path
+
+    return make
+
+
+def _hot_journal(folder: Path, good: Path) -> Path:
+    """A database whose writer was killed mid-transaction: a hot ``-journal`` next to it."""
+    path = _rollback_journal_copy(folder, good)
+    script = (
+        "import os, sqlite3, sys\n"
+        "con = sqlite3.connect(sys.argv[1], isolation_level=None)\n"
+        "con.execute('PRAGMA cache_size=1')\n"
+        "con.execute('BEGIN')\n"
+        "con.execute('UPDATE keypoints SET data = data')\n"
+        "con.execute('UPDATE descriptors SET data = zeroblob(length(data))')\n"
+        "os._exit(0)\n"
+    )
+    subprocess.run([sys.executable, "-c", script, str(path)], check=True)
+    assert path.with_name("database.db-journal").stat().st_size > 0
+    return path
+
+
+_MODEL: dict[str, bytes] = {}
+
+
+def _model(folder: Path, cut: dict[str, int | None] | None = None, images: bool = True) -> Path:
+    """A pycolmap synthetic model in ``folder/sparse/0`` (and ``folder/images`` if asked);
+    ``cut[name] = n`` keeps the first n bytes of ``name.bin`` (None: random bytes)."""
+    if not _MODEL:
+        with tempfile.TemporaryDirectory() as tmp:
+            reconstruction = synthesize(Path(tmp) / "model.db", "PINHOLE", PARAMS)
+            reconstruction.write(tmp)
+            _MODEL.update({p.name: p.read_bytes() for p in Path(tmp).glob("*.bin")})
+    model = folder / "sparse" / "0"
+    model.mkdir(parents=True)
+    if images:
+        (folder / "images").mkdir()
+    rng = np.random.default_rng(3)
+    for name, data in _MODEL.items():
+        size = (cut or {}).get(name.removesuffix(".bin"), len(data))
+        data = rng.bytes(5000) if size is None else data[:size]
+        (model / name).write_bytes(data)
+    return model
+
+
+def _models(cut: dict[str, int | None] | None = None, images: bool = True):
+    return lambda folder, _good: _model(folder, cut, images)
+
+
+def _run(*args: object) -> Callable[[Path, Path, Path], tuple]:
+    """``run IMAGES WORKSPACE --database PATH ARGS`` (the folder as IMAGES)."""
+    return lambda folder, path, workspace: ("run", folder, workspace, "--database", path, *args)
+
+
+def _database_in_workspace(folder: Path, good: Path) -> Path:
+    """An earlier run's workspace (the folder) with a model in sparse/0; the database in
+    another folder of it."""
+    _model(folder, images=False)
+    (folder / "input").mkdir()
+    return _copy(folder / "input", good)
+
+
 CASES: dict[str, Case] = {
     "missing path": Case(lambda folder, _: folder / "nope.db", "database not found"),
     "directory": Case(lambda folder, _: folder, "is a directory"),
@@ -371,6 +494,153 @@ CASES: dict[str, Case] = {
     "no space for the temporary copy": Case(
         _copy, "cannot copy the database to the temporary folder", preexec_fn=limit_file_size
     ),
+    # ----- issue 15, item 2: an output that is the input database
+    "--json is the database": Case(
+        _copy, "--json", argv=lambda f, p, w: ("calibrate", p, "--json", p)
+    ),
+    "--json is the database, with --write": Case(
+        _copy,
+        "is the database: refusing",
+        argv=lambda f, p, w: ("calibrate", p, "--json", p, "--write"),
+    ),
+    "--json is a symlink to the database": Case(
+        _link("symlink"),
+        "(the same file as",
+        argv=lambda f, p, w: ("calibrate", p, "--json", f / "out.json"),
+    ),
+    "--json is a hard link to the database": Case(
+        _link("hardlink"),
+        "(the same file as",
+        argv=lambda f, p, w: ("calibrate", p, "--json", f / "out.json", "--write"),
+    ),
+    "run --png is the --database": Case(_copy, "--png", argv=_run("--png", "{path}")),
+    "show --png is a model file": Case(
+        _models(), "is a file of MODEL", argv=lambda f, p, w: ("show", p, "--png", p / "images.bin")
+    ),
+    "run --png is a file of --model": Case(
+        lambda f, g: _copy(_model(f).parent.parent, g),
+        "is a file of --model",
+        argv=_run("--model", "{folder}/sparse/0", "--png", "{folder}/sparse/0/points3D.bin"),
+    ),
+    "evaluate --json is a model file": Case(
+        _models(),
+        "is a file of the dataset",
+        argv=lambda f, p, w: ("evaluate", "colmap", p, "--json", p / "points3D.bin"),
+    ),
+    # ----- item 3: run never deletes its inputs
+    "run --database is WORKSPACE/database.db, --overwrite": Case(
+        _copy,
+        "is the --database input",
+        argv=lambda f, p, w: ("run", f, f, "--database", p, "--overwrite"),
+    ),
+    "run --model inside WORKSPACE/sparse, --overwrite": Case(
+        _database_in_workspace,
+        "inside the workspace output",
+        argv=lambda f, p, w: (
+            "run",
+            f,
+            f,
+            "--database",
+            p,
+            "--model",
+            f / "sparse" / "0",
+            "--overwrite",
+        ),
+    ),
+    # ----- item 5: tracebacks that become one line
+    "keypoint NaN": Case(_keypoint_value(np.nan), "keypoint(s) of image 1"),
+    "keypoint inf": Case(_keypoint_value(np.inf), "are NaN or infinite"),
+    "keypoints with a negative row count": Case(
+        _blob_edit("UPDATE keypoints SET rows = -5 WHERE image_id = 1"),
+        "corrupt database: keypoints",
+    ),
+    "stored params NaN": Case(_params(np.nan, 1250, 530, 370), "stored params (nan,"),
+    "stored fx = fy = 0": Case(_params(0, 0, 530, 370), "give --prior or --no-prior"),
+    "prior of 1e-300": Case(
+        _copy, "invalid starting intrinsics from --prior", ("--prior", "1e-300,1e-300,530,370")
+    ),
+    "prior principal point 1e308": Case(
+        _copy, "principal point within", ("--prior", "525,525,1e308,-1e308")
+    ),
+    "0x0 camera with --no-prior": Case(
+        _blob_edit("UPDATE cameras SET width = 0, height = 0"), "image size of 0x0", ("--no-prior",)
+    ),
+    "--seed -1": Case(_copy, "seed must be in [0,", ("--seed", "-1")),
+    "run --model missing": Case(
+        _copy, "model folder not found", argv=_run("--model", "{folder}/nope")
+    ),
+    "run --model is a file": Case(_copy, "model folder not found", argv=_run("--model", "{path}")),
+    "run --model garbage": Case(
+        lambda f, g: _copy(_model(f, {"points3D": None}).parent.parent, g),
+        "COLMAP model file",
+        argv=_run("--model", "{folder}/sparse/0"),
+    ),
+    "run --camera-model FOO": Case(
+        _copy,
+        "--camera-model: invalid choice: 'FOO'",
+        argv=lambda f, p, w: ("run", f, w, "--camera-model", "FOO"),
+    ),
+    "run --seed -1": Case(_copy, "seed must be", argv=_run("--seed", "-1")),
+    "show: truncated images.bin": Case(
+        _models({"images": 3000}),
+        "truncated COLMAP model file",
+        argv=lambda f, p, w: ("show", p, "--png", f / "x.png"),
+    ),
+    "evaluate colmap: garbage points3D.bin": Case(
+        _models({"points3D": None}),
+        "points3D.bin",
+        argv=lambda f, p, w: ("evaluate", "colmap", p, "--runs", "1"),
+    ),
+    "evaluate colmap: no ../../images": Case(
+        _models(images=False),
+        ": image folder",
+        argv=lambda f, p, w: ("evaluate", "colmap", p, "--runs", "1"),
+    ),
+    "synthetic --seed -1": Case(
+        _copy, "seed must be", argv=lambda f, p, w: ("synthetic", "--seed", "-1")
+    ),
+    "synthetic --noise nan": Case(
+        _copy, "invalid --noise 'nan'", argv=lambda f, p, w: ("synthetic", "--noise", "nan")
+    ),
+    "synthetic --perturbation nan": Case(
+        _copy,
+        "expected a finite number",
+        argv=lambda f, p, w: ("synthetic", "--perturbation", "nan"),
+    ),
+    "synthetic --perturbation -500": Case(
+        _copy, "[0, 100) percent", argv=lambda f, p, w: ("synthetic", "--perturbation", "-500")
+    ),
+    # ----- item 6: models whose counts do not match their size (pycolmap grew without bound)
+    "show: empty points3D.bin": Case(
+        _models({"points3D": 0}),
+        "(0 bytes)",
+        argv=lambda f, p, w: ("show", p, "--png", f / "x.png"),
+    ),
+    "show: truncated points3D.bin": Case(
+        _models({"points3D": 20000}),
+        "need 39608 bytes, the file has 20000",
+        argv=lambda f, p, w: ("show", p, "--png", f / "x.png"),
+    ),
+    "show: points3D.bin with its count only": Case(
+        _models({"points3D": 8}),
+        "the file has 8",
+        argv=lambda f, p, w: ("show", p, "--png", f / "x.png"),
+    ),
+    # ----- item 8: one line means one line
+    "newline in the path": Case(
+        lambda f, _: f / "new\nline.db",
+        "data/new\\nline.db",  # escaped: backslash, n
+    ),
+    "RuntimeWarning: --prior 1e308": Case(
+        _copy, "invalid starting intrinsics", ("--prior", "1e308,1e308,530,370")
+    ),
+    "RuntimeWarning: stored focal 1e300": Case(
+        _params(1e300, 1e300, 530, 370), "from the stored camera"
+    ),
+    "0x0 camera (exit 0 before)": Case(
+        _blob_edit("UPDATE cameras SET width = 0, height = 0"), "image size of 0x0"
+    ),
+    "hot rollback journal": Case(_hot_journal, "hot rollback journal"),
 }
 
 
@@ -382,9 +652,15 @@ def test_bad_input(name: str, good_database: Path, tmp_path: Path) -> None:
     path = case.make(folder, good_database)
     if case.read_only:
         path.chmod(0o444)
-    before = sha256(path) if path.is_file() else None
-    files_before = listing(folder)
-    args = ("calibrate", path, *case.args)
+    before = tree(folder)
+    workspace = tmp_path / "ws"
+    if case.argv is None:
+        args = ("calibrate", path, *case.args)
+    else:  # "{path}" and "{folder}" in a row's arguments stand for the made path and folder
+        args = tuple(
+            str(a).format(path=path, folder=folder) if "{" in str(a) else a
+            for a in case.argv(folder, path, workspace)
+        )
     if case.lock is not None:
         statement, journal_mode = case.lock
         with holding_lock(path, statement, journal_mode):
@@ -392,12 +668,11 @@ def test_bad_input(name: str, good_database: Path, tmp_path: Path) -> None:
     else:
         result = run_cli(*args, preexec_fn=case.preexec_fn)
     assert_one_error_line(result, case.fragment, case.status)
-    if before is not None:
-        assert sha256(path) == before
-    assert listing(folder) == files_before
+    assert tree(folder) == before  # every file byte-identical, none added or removed
+    assert not workspace.exists()  # refused before the workspace was made
     # A results table only if computed: outputs (--json, then --write) come last, so a
     # failing one does not lose the estimate.
-    assert result.stdout == "" or "--json" in case.args or "--write" in case.args
+    assert result.stdout == "" or "--json" in args or "--write" in args
 
 
 def test_jittered_copies_determine_nothing_and_write_nothing(tmp_path: Path) -> None:
@@ -456,6 +731,24 @@ def _send_sigint() -> None:
     os.kill(os.getpid(), signal.SIGINT)
 
 
+def _send_sigterm() -> None:
+    """A real SIGTERM to this process (``kill PID``, a service manager stopping a job)."""
+    os.kill(os.getpid(), signal.SIGTERM)
+
+
+def _send_sighup() -> None:
+    """A real SIGHUP to this process (the terminal was closed)."""
+    os.kill(os.getpid(), signal.SIGHUP)
+
+
+#: How each signal ends a run: its one line and exit status.
+SIGNAL_ENDINGS = {
+    "sigint": (_send_sigint, "error: interrupted", 130),
+    "sigterm": (_send_sigterm, "error: terminated", 143),
+    "sighup": (_send_sighup, "error: terminated (hangup)", 129),
+}
+
+
 def _main(capsys: pytest.CaptureFixture, *args: object) -> tuple[int, list[str]]:
     status = cli.main([str(a) for a in args])
     return status, capsys.readouterr().err.splitlines()
@@ -484,11 +777,17 @@ def test_interrupt_between_update_and_commit(
 @pytest.mark.parametrize(
     ("function", "inject"),
     [
-        ("_claim_backup_path", "after-sigint"),  # the empty .bak exists, the copy not yet
+        ("_claim_backup_path", "after-sigint"),  # the empty temporary exists, no copy yet
         ("_copy_database", "before-sigint"),  # Ctrl-C while copying
-        ("_copy_database", "after-raise"),  # the complete .bak exists, not yet recorded
+        ("_copy_database", "after-raise"),  # the complete copy exists, not yet renamed
+        ("_publish_backup", "after-sigint"),  # the .bak exists, nothing written yet
         ("_update_params", "before-raise"),
         ("_update_params", "after-sigint"),
+        # SIGTERM and SIGHUP are handled like Ctrl-C (issue 15, item 1).
+        ("_claim_backup_path", "after-sigterm"),
+        ("_copy_database", "before-sigterm"),
+        ("_publish_backup", "after-sighup"),
+        ("_update_params", "after-sighup"),
     ],
 )
 def test_interrupt_before_commit_leaves_nothing(
@@ -501,11 +800,13 @@ def test_interrupt_before_commit_leaves_nothing(
     """Interrupted at any step before COMMIT: database byte-identical, no backup left."""
     before = sha256(database_copy)
     when, how = inject.split("-")
-    action = _send_sigint if how == "sigint" else _raise_interrupt
+    action, line, expected_status = SIGNAL_ENDINGS.get(
+        how, (_raise_interrupt, *SIGNAL_ENDINGS["sigint"][1:])
+    )
     wrap = _after if when == "after" else _before
     monkeypatch.setattr(database_module, function, wrap(getattr(database_module, function), action))
     status, lines = _main(capsys, "calibrate", database_copy, *QUICK)
-    assert (status, lines) == (130, ["error: interrupted"])
+    assert (status, lines) == (expected_status, [line])
     assert sha256(database_copy) == before
     assert listing(database_copy.parent) == ["database.db"]
 
@@ -524,6 +825,57 @@ def test_interrupt_during_commit_is_held_until_written(
     assert backup.read_bytes() == original_bytes
     np.testing.assert_allclose(camera_params(database_copy), PARAMS, rtol=1e-5)
     assert listing(database_copy.parent) == ["database.db", "database.db.bak"]
+
+
+@pytest.mark.parametrize("how", ["sigterm", "sighup"])
+def test_signal_during_commit_is_held_until_written(
+    how: str,
+    database_copy: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture,
+) -> None:
+    """Any of the three signals as COMMIT starts: the commit completes, the backup is kept."""
+    send, line, expected_status = SIGNAL_ENDINGS[how]
+    monkeypatch.setattr(database_module, "_commit", _before(database_module._commit, send))
+    status, lines = _main(capsys, "calibrate", database_copy, *QUICK)
+    assert status == expected_status
+    assert len(lines) == 1 and lines[0].startswith(f"{line} (after the new intrinsics"), lines
+    np.testing.assert_allclose(camera_params(database_copy), PARAMS, rtol=1e-5)
+    assert listing(database_copy.parent) == ["database.db", "database.db.bak"]
+
+
+def test_backup_is_copied_under_a_temporary_name(
+    database_copy: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    """While the copy is made no ``.bak`` exists: a process killed meanwhile (even by
+    SIGKILL) never leaves a partial ``.bak`` that a later ``--write`` would keep as
+    ``.bak``, making ``.bak1`` (issue 15, item 1). The complete copy is renamed."""
+    original = database_copy.read_bytes()
+    seen: list[list[str]] = []
+    copy = database_module._copy_database
+
+    def watched(path: Path, target: Path) -> None:
+        seen.append(listing(path.parent))
+        copy(path, target)
+        seen.append(listing(path.parent))
+
+    monkeypatch.setattr(database_module, "_copy_database", watched)
+    status, _ = _main(capsys, "calibrate", database_copy, *QUICK)
+    assert status == 0
+    assert seen and not any("database.db.bak" in names for names in seen), seen
+    assert listing(database_copy.parent) == ["database.db", "database.db.bak"]
+    assert database_copy.with_name("database.db.bak").read_bytes() == original
+
+
+def test_a_second_write_keeps_the_first_backup(database_copy: Path) -> None:
+    """An existing ``.bak`` is never overwritten: the next backup is ``.bak1``."""
+    original = database_copy.read_bytes()
+    assert run_cli("calibrate", database_copy, *QUICK).returncode == 0
+    first = database_copy.read_bytes()
+    assert run_cli("calibrate", database_copy, *QUICK).returncode == 0
+    assert listing(database_copy.parent) == ["database.db", "database.db.bak", "database.db.bak1"]
+    assert database_copy.with_name("database.db.bak").read_bytes() == original
+    assert database_copy.with_name("database.db.bak1").read_bytes() == first
 
 
 def test_no_space_for_the_backup(
@@ -562,8 +914,21 @@ def _write_state(path: Path, original: bytes, new_params: np.ndarray) -> str:
     return "written"
 
 
-def test_sigint_at_any_time_during_write(good_database: Path, tmp_path: Path) -> None:
-    """Real SIGINTs, as a terminal sends them (to the process group), across a whole run.
+@pytest.mark.parametrize(
+    ("signum", "line", "status", "runs"),
+    [
+        (signal.SIGINT, "error: interrupted", 130, 6),
+        # Issue 15, item 1: these ended with glog's stack dump and a partial .bak.
+        (signal.SIGTERM, "error: terminated", 143, 3),
+        (signal.SIGHUP, "error: terminated (hangup)", 129, 3),
+    ],
+    ids=["SIGINT", "SIGTERM", "SIGHUP"],
+)
+def test_signal_at_any_time_during_write(
+    signum: int, line: str, status: int, runs: int, good_database: Path, tmp_path: Path
+) -> None:
+    """Real signals, as a terminal (or ``kill``) sends them to the process group, across
+    a whole run.
 
     Afterwards the database is either byte-identical with no backup, or holds exactly
     the new params with a ``.bak`` equal to the original: never a half state, never a
@@ -581,7 +946,7 @@ def test_sigint_at_any_time_during_write(good_database: Path, tmp_path: Path) ->
     assert completed.returncode == 0, completed.stderr
     new_params = camera_params(reference)
     np.testing.assert_allclose(new_params, PARAMS, rtol=1e-4)
-    delays: list[float | None] = [0.4, *np.linspace(0.6, duration, 6), None]
+    delays: list[float | None] = [0.4, *np.linspace(0.6, duration, runs), None]
     states = []
     for index, delay in enumerate(delays):
         path = tmp_path / f"run{index}" / "database.db"
@@ -598,7 +963,7 @@ def test_sigint_at_any_time_during_write(good_database: Path, tmp_path: Path) ->
         if delay is not None:
             time.sleep(delay)
             try:
-                os.killpg(process.pid, signal.SIGINT)
+                os.killpg(process.pid, signum)
             except ProcessLookupError:  # already finished
                 pass
         stdout, stderr = process.communicate(timeout=120)
@@ -608,14 +973,134 @@ def test_sigint_at_any_time_during_write(good_database: Path, tmp_path: Path) ->
         if stderr == "" and "wrote 1 camera(s)" in stdout:
             # Finished; status 0, or -SIGINT when the signal came during the interpreter's
             # shutdown, after it had put back the default handler (seen at ~duration).
-            assert process.returncode in (0, -signal.SIGINT) and state == "written", delay
+            assert process.returncode in (0, -signum) and state == "written", delay
+            continue
+        if signum != signal.SIGINT and process.returncode == -signum and stderr == "":
+            # SIGTERM/SIGHUP before main() installed its handler: the default action,
+            # which ends the process before it has opened anything.
+            assert state == "untouched", delay
             continue
         # Exit status 130, or killed by SIGINT (a shell shows 130 as well). CPython ends
         # that way, after main() returned 130, when the KeyboardInterrupt was raised
         # inside an exec()/eval() of a string (dataclass and namedtuple definitions of the
         # modules still being imported): it remembers it as "unhandled" and re-raises
         # SIGINT at exit.
-        assert process.returncode in (130, -signal.SIGINT), (delay, stderr)
+        assert process.returncode in (status, -signum), (delay, stderr)
         lines = stderr.splitlines()
-        assert len(lines) == 1 and lines[0].startswith("error: interrupted"), (delay, stderr)
+        assert len(lines) == 1 and lines[0].startswith(line), (delay, stderr)
     assert states[0] == "untouched" and states[-1] == "written", states
+
+
+# --------------------------------------------------------------------------- issue 15: outputs
+
+QUICK_READ = ("--prior", PRIOR, "--max-triplets", "3", "--no-focal-search")
+
+
+def _table_and_json(stdout: str, stderr: str) -> list[dict]:
+    """The JSON (all of stdout) and a check that the results table went to stderr."""
+    assert stderr.splitlines()[0].split()[:2] == ["camera", "model"], stderr
+    return json.loads(stdout)
+
+
+@pytest.mark.parametrize("target", ["-", "/dev/stdout"])
+def test_json_to_stdout_on_a_pipe(target: str, database_copy: Path) -> None:
+    """``--json -`` (and ``/dev/stdout`` on a pipe, which failed after the whole run):
+    stdout is the JSON alone, the table goes to stderr (issue 15, item 7)."""
+    result = run_cli("calibrate", database_copy, *QUICK_READ, "--json", target)
+    assert result.returncode == 0, result.stderr
+    (entry,) = _table_and_json(result.stdout, result.stderr)
+    np.testing.assert_allclose([entry[k] for k in ("fx", "fy", "cx", "cy")], PARAMS, rtol=1e-4)
+
+
+def test_json_to_stdout_redirected_to_a_file(database_copy: Path, tmp_path: Path) -> None:
+    """``--json /dev/stdout`` with stdout redirected to a file: the file holds the JSON and
+    the table is not lost (it went to stderr; before, the JSON replaced the file)."""
+    out = tmp_path / "out.txt"
+    with out.open("w") as stream:
+        result = subprocess.run(
+            [sys.executable, "-m", "colmap_trifocal.cli", "calibrate", str(database_copy)]
+            + [*QUICK_READ, "--json", "/dev/stdout"],
+            stdout=stream,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=300,
+        )
+    assert result.returncode == 0, result.stderr
+    assert len(_table_and_json(out.read_text(), result.stderr)) == 1
+
+
+def test_repeated_camera_id_is_calibrated_once(database_copy: Path, tmp_path: Path) -> None:
+    """``--camera-id 1 --camera-id 1``: one result, not two (issue 15, item 8)."""
+    out = tmp_path / "result.json"
+    result = run_cli(
+        "calibrate",
+        database_copy,
+        *QUICK_READ,
+        "--camera-id",
+        "1",
+        "--camera-id",
+        "1",
+        "--json",
+        out,
+    )
+    assert result.returncode == 0, result.stderr
+    assert [entry["camera_id"] for entry in json.loads(out.read_text())] == [1]
+    assert len(result.stdout.splitlines()) == 2  # the header and one camera
+
+
+def test_run_copies_what_is_still_in_the_wal(good_database: Path, tmp_path: Path) -> None:
+    """``run --database`` copies with SQLite's backup API: committed rows still in the
+    ``-wal`` reach the workspace's copy (a copy of the main file lost the verified
+    matches, and mapping found none; issue 15, item 4). The input stays as it was."""
+    source = tmp_path / "input" / "database.db"
+    source.parent.mkdir()
+    shutil.copyfile(good_database, source)
+    con = sqlite3.connect(source, isolation_level=None)
+    try:
+        assert con.execute("PRAGMA journal_mode=WAL").fetchone() == ("wal",)
+        rows = con.execute("SELECT * FROM two_view_geometries").fetchall()
+        con.execute("DELETE FROM two_view_geometries")
+        con.execute("PRAGMA wal_checkpoint(TRUNCATE)")  # the main file has no matches now
+        con.execute("PRAGMA wal_autocheckpoint=0")
+        marks = ",".join("?" * len(rows[0]))
+        con.executemany(f"INSERT INTO two_view_geometries VALUES ({marks})", rows)
+        wal = source.with_name("database.db-wal")
+        assert wal.stat().st_size > 0  # committed, and only in the -wal while con is open
+        before = sha256(source), sha256(wal)
+        workspace = tmp_path / "ws"
+        result = run_cli("run", tmp_path / "no-images", workspace, "--database", source)
+        assert (sha256(source), sha256(wal)) == before
+    finally:
+        con.close()
+    assert result.returncode == 0, result.stderr
+    copy = sqlite3.connect(workspace / "database.db")
+    try:
+        assert copy.execute("SELECT COUNT(*) FROM two_view_geometries").fetchone() == (len(rows),)
+    finally:
+        copy.close()
+    report = json.loads((workspace / "report.json").read_text())
+    assert report["num_registered_images"] == 6
+
+
+def test_numerical_warnings_go_to_the_log_not_stderr(
+    database_copy: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A RuntimeWarning raised during a run (here a real float overflow in numpy, injected
+    after the database is read) is logged (-v shows it); stderr stays empty (issue 15,
+    item 8: such lines came before the ``error:`` line)."""
+    from colmap_trifocal.intrinsics import calibrate as calibrate_module
+
+    def overflow() -> None:
+        with np.errstate(over="warn"):
+            np.float64(1e300) * np.float64(1e300)
+
+    monkeypatch.setattr(
+        calibrate_module, "read_database", _after(calibrate_module.read_database, overflow)
+    )
+    with caplog.at_level("INFO", logger="colmap_trifocal"):
+        status, lines = _main(capsys, "calibrate", database_copy, *QUICK_READ)
+    assert (status, lines) == (0, [])
+    assert any("RuntimeWarning: overflow" in r.getMessage() for r in caplog.records)

@@ -1,7 +1,8 @@
 """Command line: ``colmap-trifocal calibrate DATABASE ...`` (see README / DESIGN.md).
 
 Exit status 0 on success. Input problems print one line ``error: ...`` on
-stderr and exit with status 2 (130 when interrupted); no traceback.
+stderr and exit with status 2 (130 when interrupted by Ctrl-C, 143 on SIGTERM, 129 on
+SIGHUP); no traceback.
 
 The heavy modules (numpy, scipy, pycolmap, the pipeline) are imported inside
 :func:`main`, under its error handling, so that Ctrl-C during the first second
@@ -16,21 +17,30 @@ import os
 import signal
 import sys
 import threading
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from . import __version__
-from .common.errors import CalibrationError
-from .common.files import write_text_atomically
+from .common.arguments import seed
+from .common.errors import TERMINATING_SIGNALS, CalibrationError
+from .common.files import file_identity, refuse_overwriting_input, write_text_atomically
 
 EXIT_INPUT_ERROR = 2
 EXIT_INTERRUPTED = 130
+
+
+def one_line(text: str) -> str:
+    """``text`` with control characters escaped (a newline in a path becomes ``\\n``)."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 class _OneLineParser(argparse.ArgumentParser):
     """argparse that reports usage mistakes as a single ``error: ...`` line."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        sys.stderr.write(f"error: {message} (see '{self.prog} --help')\n")
+        sys.stderr.write(f"error: {one_line(message)} (see '{self.prog} --help')\n")
         raise SystemExit(EXIT_INPUT_ERROR)
 
 
@@ -94,8 +104,13 @@ def _add_calibrate_parser(commands: argparse._SubParsersAction) -> None:
         help="camera ids sharing intrinsics: auto (same model, size and stored parameters; "
         "default), camera (each camera id alone), all (every image one camera)",
     )
-    calibrate.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    calibrate.add_argument("--json", type=Path, metavar="OUT", help="write the results as JSON")
+    calibrate.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
+    calibrate.add_argument(
+        "--json",
+        type=Path,
+        metavar="OUT",
+        help="write the results as JSON (-: to stdout, the table then goes to stderr)",
+    )
     calibrate.add_argument(
         "--write",
         action="store_true",
@@ -137,6 +152,7 @@ def _add_calibrate_parser(commands: argparse._SubParsersAction) -> None:
 def _add_run_parser(commands: argparse._SubParsersAction) -> None:
     """``run IMAGES WORKSPACE``: features, calibration, mapping, bundle adjustment."""
     from .database.camera_groups import GROUPINGS
+    from .database.cameras import SUPPORTED_MODELS
     from .database.features import MATCHERS
     from .intrinsics.calibrate import METHODS
     from .reconstruction.mapping import MAPPERS, REFINE_CHOICES
@@ -156,6 +172,7 @@ def _add_run_parser(commands: argparse._SubParsersAction) -> None:
     run.add_argument(
         "--camera-model",
         default=RunOptions.camera_model,
+        choices=SUPPORTED_MODELS,
         help="COLMAP model of the new cameras (default PINHOLE; one camera per image, as "
         "COLMAP's default, grouped into physical cameras by --group)",
     )
@@ -169,7 +186,7 @@ def _add_run_parser(commands: argparse._SubParsersAction) -> None:
     )
     run.add_argument("--method", choices=METHODS, default=RunOptions.method)
     run.add_argument("--refine", choices=REFINE_CHOICES, default=RunOptions.refine)
-    run.add_argument("--seed", type=int, default=0)
+    run.add_argument("--seed", type=seed, default=0)
     run.add_argument("--database", type=Path, help="start from this database (it is copied)")
     run.add_argument(
         "--model",
@@ -202,7 +219,7 @@ def _add_demo_parser(commands: argparse._SubParsersAction) -> None:
     demo = commands.add_parser(
         "demo", help="calibrate a synthetic database with a known camera (no download)"
     )
-    demo.add_argument("--seed", type=int, default=0)
+    demo.add_argument("--seed", type=seed, default=0)
     demo.add_argument("--method", choices=METHODS, default="msac-opt")
     demo.add_argument("--keep", type=Path, metavar="DIR", help="keep the demo database in DIR")
 
@@ -274,26 +291,34 @@ def _run_calibrate(args: argparse.Namespace) -> int:
 
         check_output_folder(args.output, args.model)
         read_model(args.model)  # a one-line error now, not after the calibration
-    if args.json is not None:
+    json_to_stdout = args.json is not None and _is_stdout(args.json)
+    if args.json is not None and not json_to_stdout:
         _check_output(args.json, "--json")
+        refuse_overwriting_input(
+            args.json, _database_files(args.database), "--json", "the database"
+        )
     if args.write:  # refuse a read-only database now, not after the calibration
         check_writable(args.database)
     check_options(options)
     contents = read_database(args.database)
     by_method, skipped = calibrate_groups(contents, options, (options.method,))
     results = by_method[options.method]
+    # With the JSON on stdout, the table and messages go to stderr: stdout stays JSON.
+    out = sys.stderr if json_to_stdout else sys.stdout
     print(
         f"{'camera':>6} {'model':<14} {'method':<11} {'fx':>10} {'fy':>10} {'cx':>10} "
-        f"{'cy':>10} {'triplets':>9} {'time':>7} {'ids':>4}"
+        f"{'cy':>10} {'triplets':>9} {'time':>7} {'ids':>4}",
+        file=out,
     )
     for r in results:
         print(
             f"{r.camera_id:>6} {r.model:<14} {r.method:<11} {r.fx:>10.2f} {r.fy:>10.2f} "
             f"{r.cx:>10.2f} {r.cy:>10.2f} {r.num_inlier_triplets:>4}/{r.num_triplets:<4} "
-            f"{r.seconds:>6.1f}s {len(r.camera_ids):>4}"
+            f"{r.seconds:>6.1f}s {len(r.camera_ids):>4}",
+            file=out,
         )
         if len(r.camera_ids) > 1:
-            print(f"{'':>6} shared by camera ids {format_ids(r.camera_ids)}")
+            print(f"{'':>6} shared by camera ids {format_ids(r.camera_ids)}", file=out)
         warning = r.warning()
         if warning is not None:
             print(f"warning: {warning}", file=sys.stderr)
@@ -310,24 +335,53 @@ def _run_calibrate(args: argparse.Namespace) -> int:
             args.refine or "ba",
             args.refine_distortion,
         )
-        print(update.describe())
+        print(update.describe(), file=out)
     if args.json is not None:
         entries = [r.to_json() for r in results] + [g.to_json() for g in skipped]
         if update is not None:
             for entry in entries:
                 entry["model"] = update.to_json()
+        text = json.dumps(entries, indent=2) + "\n"
         try:
-            write_text_atomically(args.json, json.dumps(entries, indent=2) + "\n")
+            if json_to_stdout:
+                sys.stdout.write(text)
+                sys.stdout.flush()
+            else:
+                write_text_atomically(args.json, text)
         except OSError as exc:
             raise CalibrationError(f"cannot write {args.json}: {exc.strerror or exc}") from None
     if args.write:
         written = write_calibrations(args.database, results)
         if written:
-            print(f"wrote {written} camera(s) to {args.database}")
+            print(f"wrote {written} camera(s) to {args.database}", file=out)
         for r in results:
             if not r.determined_anything:
-                print(f"camera {r.camera_id} not written: the images determine none of its values")
+                print(
+                    f"camera {r.camera_id} not written: the images determine none of its values",
+                    file=out,
+                )
     return 0
+
+
+def _is_stdout(path: Path) -> bool:
+    """``-``, or a path naming this process's standard output (``/dev/stdout``, ...)."""
+    if str(path) == "-":
+        return True
+    try:
+        st = os.fstat(sys.stdout.fileno())
+    except (OSError, ValueError):  # no usable file descriptor (captured, closed)
+        return False
+    return file_identity(path) == (st.st_dev, st.st_ino)
+
+
+def _files_in(folder: Path) -> list[Path]:
+    """The files directly in ``folder`` (none if it is not a folder)."""
+    return [p for p in folder.iterdir() if p.is_file()] if folder.is_dir() else []
+
+
+def _database_files(database: Path) -> list[Path]:
+    """The database and SQLite's companion files (which no output may replace either)."""
+    return [database, *(database.with_name(database.name + s) for s in ("-wal", "-journal"))]
 
 
 def _run_pipeline(args: argparse.Namespace) -> int:
@@ -337,6 +391,12 @@ def _run_pipeline(args: argparse.Namespace) -> int:
         raise CalibrationError("--max-image-size must be at least 100 pixels")
     if args.png is not None:
         _check_output(args.png, "--png")
+        if args.database is not None:
+            refuse_overwriting_input(
+                args.png, _database_files(args.database), "--png", "the database"
+            )
+        if args.model is not None:
+            refuse_overwriting_input(args.png, _files_in(args.model), "--png", "a file of --model")
     options = RunOptions(
         max_image_size=args.max_image_size,
         matcher=args.matcher,
@@ -374,6 +434,8 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "show":
         from .reconstruction.visualize import show  # open3d is imported only for this command
 
+        if args.png is not None:
+            refuse_overwriting_input(args.png, _files_in(args.model), "--png", "a file of MODEL")
         written = show(args.model, args.png)
         if written is not None:
             print(f"wrote {written}")
@@ -396,26 +458,85 @@ def _dispatch(args: argparse.Namespace) -> int:
 
 
 class _InterruptWatch:
-    """SIGINT handler that raises KeyboardInterrupt like Python's own and remembers it.
+    """Handler of SIGINT, SIGTERM and SIGHUP: raises KeyboardInterrupt and remembers the signal.
 
-    Some libraries turn the KeyboardInterrupt into another exception, e.g. pycolmap's C++
-    module, interrupted while it loads, fails with an ``ImportError``/``RuntimeError``;
-    :func:`main` still reports such a run as interrupted.
+    All three end a run the same way (the write in progress rolled back, one ``error:``
+    line), SIGINT as Python's own handler does. Some libraries turn the KeyboardInterrupt
+    into another exception, e.g. pycolmap's C++ module, interrupted while it loads, fails
+    with an ``ImportError``/``RuntimeError``; :func:`main` still reports such a run as
+    interrupted.
     """
 
     def __init__(self) -> None:
-        self.received = False
+        self.signum: int | None = None
+
+    @property
+    def received(self) -> bool:
+        return self.signum is not None
 
     def __call__(self, signum: int, frame: object) -> None:
-        self.received = True
+        if self.signum is None:
+            self.signum = signum
         raise KeyboardInterrupt
 
+    def install(self) -> dict[int, object]:
+        """Install for every signal not ignored (``nohup``); the previous handlers."""
+        return {
+            signum: signal.signal(signum, self)
+            for signum in TERMINATING_SIGNALS
+            if signal.getsignal(signum) is not signal.SIG_IGN
+        }
 
-def _interrupted(exc: BaseException) -> int:
-    """Print the one line for an interrupted run; the exit status 130."""
+
+@contextmanager
+def _glog_cannot_take_sigterm(watch: _InterruptWatch, in_main_thread: bool) -> Iterator[None]:
+    """Hold SIGTERM back while pycolmap loads; then install ``watch`` for it again.
+
+    Importing pycolmap installs glog's failure handler for SIGTERM (and SIGSEGV, ...),
+    which ends the process with a stack dump and no clean-up. A SIGTERM that arrives
+    meanwhile stays pending (``pthread_sigmask``) and reaches ``watch`` afterwards.
+    """
+    if not in_main_thread or signal.getsignal(signal.SIGTERM) is not watch:
+        yield
+        return
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, watch)
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+
+
+def _log_warning(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: object = None,
+    line: str | None = None,
+) -> None:
+    """Python warnings (numpy's RuntimeWarnings, ...) go to the package log (-v).
+
+    stderr carries one ``error:`` line or the tool's own ``warning:`` lines only; a
+    numerical warning says nothing the result's checks do not say better.
+    """
+    from .common.log import logger
+
+    logger.info("%s: %s (%s:%d)", category.__name__, message, filename, lineno)
+
+
+def _interrupted(exc: BaseException, signum: int | None = None) -> int:
+    """Print the one line for an interrupted run; its exit status (128 + the signal).
+
+    Ctrl-C (SIGINT) is "interrupted", SIGTERM and SIGHUP "terminated".
+    """
     detail = f" ({exc})" if isinstance(exc, KeyboardInterrupt) and str(exc) else ""
-    print(f"error: interrupted{detail}", file=sys.stderr)
-    return EXIT_INTERRUPTED
+    signum = signal.SIGINT if signum is None else signum
+    word = "interrupted" if signum == signal.SIGINT else "terminated"
+    if signum == signal.SIGHUP:
+        detail = f" (hangup){detail}"
+    print(one_line(f"error: {word}{detail}"), file=sys.stderr)
+    return 128 + int(signum)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -428,33 +549,36 @@ def main(argv: list[str] | None = None) -> int:
     """
     watch = _InterruptWatch()
     in_main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, watch) if in_main_thread else None
+    previous = watch.install() if in_main_thread else {}
     try:
-        args = build_parser().parse_args(argv)  # imports numpy, scipy, pycolmap, ...
-        _configure_logging(args.verbose + args.verbose_after)
+        with _glog_cannot_take_sigterm(watch, in_main_thread):
+            args = build_parser().parse_args(argv)  # imports numpy, scipy, pycolmap, ...
+            _configure_logging(args.verbose + args.verbose_after)
         if watch.received:  # a Ctrl-C that an import swallowed (ImportError fallbacks)
             raise KeyboardInterrupt
-        return _dispatch(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _log_warning  # numerical warnings: -v, not stderr
+            return _dispatch(args)
     except KeyboardInterrupt as exc:
-        return _interrupted(exc)
+        return _interrupted(exc, watch.signum)
     except CalibrationError as exc:
         if watch.received:
-            return _interrupted(exc)
-        print(f"error: {exc}", file=sys.stderr)
+            return _interrupted(exc, watch.signum)
+        print(one_line(f"error: {exc}"), file=sys.stderr)
         return EXIT_INPUT_ERROR
     except OSError as exc:
         if watch.received:
-            return _interrupted(exc)
+            return _interrupted(exc, watch.signum)
         where = f": {exc.filename}" if exc.filename is not None else ""
-        print(f"error: {exc.strerror or exc}{where}", file=sys.stderr)
+        print(one_line(f"error: {exc.strerror or exc}{where}"), file=sys.stderr)
         return EXIT_INPUT_ERROR
     except Exception as exc:
         if watch.received:
-            return _interrupted(exc)
+            return _interrupted(exc, watch.signum)
         raise
     finally:
-        if in_main_thread:
-            signal.signal(signal.SIGINT, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 if __name__ == "__main__":

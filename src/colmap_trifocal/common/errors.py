@@ -13,6 +13,10 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+#: The signals that end a run like Ctrl-C: the write in progress is rolled back (or, once
+#: COMMIT has started, finished) and one ``error:`` line is printed.
+TERMINATING_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
 
 class CalibrationError(RuntimeError):
     """An input problem explained in one line (no traceback for the user)."""
@@ -20,7 +24,13 @@ class CalibrationError(RuntimeError):
 
 @contextmanager
 def interrupts_deferred() -> Iterator[None]:
-    """Hold back Ctrl-C (SIGINT) until the block has finished, then raise KeyboardInterrupt.
+    """Hold back Ctrl-C (SIGINT), SIGTERM and SIGHUP until the block has finished.
+
+    The first signal held back is then delivered again (``signal.raise_signal``) to the
+    handler that was installed before the block: the command line's handler raises
+    KeyboardInterrupt and remembers which signal it was; Python's default SIGINT handler
+    raises KeyboardInterrupt; a default SIGTERM/SIGHUP action ends the process. Signals
+    that were ignored (``nohup``) stay ignored.
 
     For the few statements that must not be split: creating a file and remembering
     it, so that the clean-up after an interrupt knows what exists; COMMIT and
@@ -37,10 +47,15 @@ def interrupts_deferred() -> Iterator[None]:
     def remember(signum: int, _frame: object) -> None:
         received.append(signum)
 
-    previous = signal.signal(signal.SIGINT, remember)
+    previous = {
+        signum: signal.signal(signum, remember)
+        for signum in TERMINATING_SIGNALS
+        if signal.getsignal(signum) is not signal.SIG_IGN  # nohup: stays ignored
+    }
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
     if received:
-        raise KeyboardInterrupt
+        signal.raise_signal(received[0])

@@ -4,7 +4,43 @@ from __future__ import annotations
 
 import os
 import tempfile
+from collections.abc import Iterable
 from pathlib import Path
+
+from .errors import CalibrationError
+
+
+def file_identity(path: Path | str) -> tuple[int, int] | None:
+    """``(st_dev, st_ino)`` of the file at ``path`` (symlinks followed), None if none exists.
+
+    Two paths name the same file (a symlink, a hard link, ``..`` detours) exactly when
+    their identities are equal.
+    """
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):  # missing, a dangling link, a NUL in the name
+        return None
+    return st.st_dev, st.st_ino
+
+
+def refuse_overwriting_input(
+    output: Path | str, inputs: Iterable[Path | str], option: str, what: str = "an input"
+) -> None:
+    """Refuse an output path that is one of the command's input files.
+
+    Compares file identities (device and inode), so a symlink or a hard link to an input
+    is caught as well as the input's own path. Call it before any work is done.
+
+    Raises:
+        CalibrationError: ``output`` exists and is the same file as one of ``inputs``.
+    """
+    target = file_identity(output)
+    if target is None:
+        return
+    for path in inputs:
+        if file_identity(path) == target:
+            same = "" if os.fspath(path) == os.fspath(output) else f" (the same file as {path})"
+            raise CalibrationError(f"{option} {output} is {what}{same}: refusing to overwrite it")
 
 
 def write_text_atomically(path: Path, text: str) -> None:

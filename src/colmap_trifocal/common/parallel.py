@@ -25,8 +25,10 @@ def default_workers() -> int:
 
 
 def _quiet_worker() -> None:
-    """Ctrl-C is the parent's to handle; terminate() ends a worker without glog's stack dump."""
+    """Ctrl-C and a hangup are the parent's to handle; terminate() (SIGTERM) ends a worker
+    without glog's stack dump."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 

@@ -23,6 +23,7 @@ Conventions
 from __future__ import annotations
 
 import os
+import shlex
 import shutil
 import sqlite3
 import stat
@@ -132,6 +133,15 @@ def _sqlite_error(exc: sqlite3.Error, path: Path, action: str = "read") -> Calib
         return CalibrationError(f"cannot {action} database: no space left on the device: {path}")
     if "I/O error" in text:
         return CalibrationError(f"cannot {action} database: disk I/O error: {path}")
+    journal = _sidecar(path, "-journal")
+    if journal.is_file() and journal.stat().st_size > 0:
+        return CalibrationError(
+            f"cannot {action} database: it has a hot rollback journal {journal} (a process "
+            "was killed while writing it); open it once with write access, e.g. "
+            f"sqlite3 {shlex.quote(str(path))} 'PRAGMA quick_check', so that SQLite rolls "
+            "that change back: "
+            f"{path} ({text})"
+        )
     return CalibrationError(f"cannot {action} database (truncated or corrupt?): {path} ({text})")
 
 
@@ -210,6 +220,34 @@ def _copy_for_reading(path: Path, dst: Path, immutable: bool) -> int:
             out.close()
     except sqlite3.Error as exc:
         raise _sqlite_error(exc, path) from exc
+
+
+def copy_database(path: Path, target: Path) -> None:
+    """Copy the whole COLMAP database at ``path`` into the new file ``target``.
+
+    SQLite's backup API, so that changes committed but still in the ``-wal`` file are
+    part of the copy (a copy of the main file alone loses them). ``path`` is opened
+    read-only; a WAL database without a ``-wal`` file is opened as immutable, which
+    creates no ``-wal``/``-shm`` files next to it (see :func:`_snapshot`).
+
+    Raises:
+        CalibrationError: not an SQLite database, locked, corrupt, or the copy failed.
+    """
+    path, target = Path(path), Path(target)
+    header = _check_sqlite_file(path)
+    wal_mode = header[18] == 2 and header[19] == 2
+    immutable = wal_mode and not _sidecar(path, "-wal").exists()
+    query = "mode=ro&immutable=1" if immutable else "mode=ro"
+    try:
+        source = sqlite3.connect(
+            f"{path.resolve().as_uri()}?{query}", uri=True, timeout=_LOCK_TIMEOUT_S
+        )
+        try:
+            _backup_into(source, target)
+        finally:
+            source.close()
+    except sqlite3.Error as exc:
+        raise _sqlite_error(exc, path, "copy") from exc
 
 
 def _stat_key(path: Path) -> tuple[int, int, int]:
@@ -346,6 +384,46 @@ def _rig_sensor_cameras(rigs: list[pycolmap.Rig]) -> set[int]:
     return cameras
 
 
+#: Blobs pycolmap reads with the shape stored next to them: (table, bytes per value).
+_SHAPED_BLOBS = (("keypoints", 4), ("two_view_geometries", 4))
+
+
+def _check_blob_shapes(snapshot: Path, path: Path) -> None:
+    """Refuse blobs whose stored shape does not match their size (pycolmap trusts it).
+
+    A negative or too large ``rows`` makes pycolmap allocate without bound
+    (``std::bad_alloc``); a short blob is read past its end.
+    """
+    con = sqlite3.connect(f"{snapshot.resolve().as_uri()}?mode=ro", uri=True)
+    try:
+        for table, itemsize in _SHAPED_BLOBS:
+            row = con.execute(
+                f"SELECT rowid, rows, cols FROM {table} WHERE rows < 0 OR cols < 0 OR "
+                f"(rows > 0 AND cols > 0 AND length(data) IS NOT rows * cols * {itemsize}) "
+                "LIMIT 1"
+            ).fetchone()
+            if row is not None:
+                raise CalibrationError(
+                    f"corrupt database: {table} row {row[0]} claims {row[1]}x{row[2]} values "
+                    f"that its data does not hold: {path}"
+                )
+    except sqlite3.Error as exc:
+        raise _sqlite_error(exc, path) from exc
+    finally:
+        con.close()
+
+
+def _check_keypoints_finite(contents: DatabaseContents, path: Path) -> None:
+    """Refuse NaN or infinite keypoint coordinates (they poison every tensor they touch)."""
+    for image_id, xy in contents.keypoints.items():
+        if not np.all(np.isfinite(xy)):
+            bad = int(np.count_nonzero(~np.all(np.isfinite(xy), axis=1)))
+            raise CalibrationError(
+                f"corrupt database: {bad} keypoint(s) of image {image_id} "
+                f"({contents.image_names[image_id]}) are NaN or infinite: {path}"
+            )
+
+
 def _read_snapshot(
     snapshot: Path, path: Path, fundamentals: bool = False
 ) -> tuple[DatabaseContents, Counter[str]]:
@@ -355,6 +433,7 @@ def _read_snapshot(
         The contents and the pairs left out by reason (see :func:`_verified_pairs`).
     """
     contents = DatabaseContents()
+    _check_blob_shapes(snapshot, path)
     try:
         with pycolmap.Database.open(str(snapshot)) as db:
             for cam in db.read_all_cameras():
@@ -368,9 +447,10 @@ def _read_snapshot(
             contents.rig_sensor_cameras = _rig_sensor_cameras(db.read_all_rigs())
     except CalibrationError:
         raise
-    except (RuntimeError, ValueError) as exc:
+    except (RuntimeError, ValueError, MemoryError) as exc:
         first_line = (str(exc).strip().splitlines() or [type(exc).__name__])[-1]
         raise CalibrationError(f"cannot read COLMAP database {path}: {first_line}") from exc
+    _check_keypoints_finite(contents, path)
     missing = sorted(set(contents.image_camera.values()) - set(contents.cameras))
     if missing:
         raise CalibrationError(
@@ -477,17 +557,61 @@ def _check_writable(path: Path) -> None:
 
 
 def _claim_backup_path(path: Path) -> Path:
-    """Create (exclusively) and return the first free ``<name>.bak``, ``.bak1``, ``.bak2``, ..."""
+    """Create and return an empty temporary file next to the database for the backup copy.
+
+    The copy is made under this hidden name (``.<name>.bak.XXXXXXXX.tmp``) and only
+    renamed to ``<name>.bak`` by :func:`_publish_backup` once it is complete and on disk,
+    so a ``.bak`` is never a partial copy, whatever ends the process.
+    """
+    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.bak.", suffix=".tmp")
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)
+    finally:
+        os.close(fd)
+    return Path(name)
+
+
+def _publish_backup(temporary: Path, path: Path) -> Path:
+    """Give the complete copy ``temporary`` the first free name ``<name>.bak``, ``.bak1``, ...
+
+    An existing backup is never overwritten: the name is taken with ``os.link``, which
+    fails if it exists (a file system without hard links falls back to a check and a
+    rename). The folder is flushed so that the name is on disk before the database
+    changes.
+    """
     index = 0
     while True:
         candidate = path.with_name(f"{path.name}.bak{index or ''}")
         try:
-            fd = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+            os.link(temporary, candidate)
         except FileExistsError:
             index += 1
             continue
-        os.close(fd)
+        except OSError:  # no hard links here
+            if candidate.exists():
+                index += 1
+                continue
+            os.rename(temporary, candidate)
+        else:
+            temporary.unlink()
+        _sync_folder(path.parent)
         return candidate
+
+
+def _sync_folder(folder: Path) -> None:
+    """Flush a folder's entries (a new file name) to disk, where the system allows it."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def _sync(path: Path) -> None:
@@ -608,10 +732,11 @@ def write_intrinsics(
 
     Only the ``params`` column of the given cameras changes. Order of events: take the
     write lock (``BEGIN IMMEDIATE``: nobody else can commit from now on), check the
-    cameras, copy the database to the backup and flush it to disk, UPDATE, COMMIT, read
-    back. Until COMMIT any error or interrupt (Ctrl-C) rolls back and deletes the backup
-    just made, leaving the database byte-identical and no backup behind; an interrupt
-    that arrives during COMMIT is held until the commit is done and the backup kept.
+    cameras, copy the database to a temporary file and flush it to disk, rename it to the
+    backup, UPDATE, COMMIT, read back. Until COMMIT any error or interrupt (Ctrl-C,
+    SIGTERM, SIGHUP) rolls back and deletes the backup (or its temporary copy) just
+    made, leaving the database byte-identical and no backup behind; an interrupt that
+    arrives during COMMIT is held until the commit is done and the backup kept.
 
     Args:
         path: COLMAP database.
@@ -637,6 +762,7 @@ def write_intrinsics(
     _check_params(cameras)
     uri = f"{path.resolve().as_uri()}?mode=rw"
     backup_path: Path | None = None
+    temporary: Path | None = None
     try:
         con = sqlite3.connect(uri, uri=True, timeout=_LOCK_TIMEOUT_S, isolation_level=None)
         try:
@@ -646,9 +772,12 @@ def write_intrinsics(
             try:
                 _check_cameras_match(con, cameras, path)
                 if backup:
-                    with interrupts_deferred():  # a created backup file is always known
-                        backup_path = _claim_backup_path(path)
-                    _make_backup(path, backup_path)
+                    with interrupts_deferred():  # a created file is always known
+                        temporary = _claim_backup_path(path)
+                    _make_backup(path, temporary)
+                    with interrupts_deferred():
+                        backup_path = _publish_backup(temporary, path)
+                        temporary = None
                     logger.info("backed up %s to %s", path, backup_path)
                 _update_params(con, cameras)
                 with interrupts_deferred():
@@ -658,8 +787,9 @@ def write_intrinsics(
                 if not committed:
                     if con.in_transaction:
                         con.execute("ROLLBACK")  # if this fails too, the backup stays
-                    if backup_path is not None:  # complete or partial: nothing was written
-                        backup_path.unlink(missing_ok=True)
+                    for made in (temporary, backup_path):  # nothing was written: no backup
+                        if made is not None:
+                            made.unlink(missing_ok=True)
                     raise
                 if isinstance(exc, KeyboardInterrupt):  # held back during COMMIT
                     kept = f"backup: {backup_path}" if backup_path else "no backup"

@@ -18,6 +18,7 @@ import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
+from ..reconstruction.model_files import check_binary_model
 from .base import DatasetScene, GroundTruthView, one_line, require_dir
 
 #: Folder names skipped when naming the scene after the model's location.
@@ -27,9 +28,10 @@ _MODEL_FOLDERS = {"sparse", "model", "models"}
 def read_colmap_scene(path: Path | str, image_dir: Path | str | None = None) -> DatasetScene:
     """The registered images of a COLMAP model folder, sorted by name."""
     model = require_dir(path, "COLMAP model folder")
+    check_binary_model(model)  # before pycolmap, which trusts the counts in the files
     try:
         reconstruction = pycolmap.Reconstruction(str(model))
-    except (ValueError, RuntimeError) as exc:
+    except (ValueError, RuntimeError, MemoryError, IndexError) as exc:
         raise CalibrationError(f"cannot read COLMAP model {model}: {one_line(exc)}") from None
     images = sorted(
         (reconstruction.image(i) for i in reconstruction.reg_image_ids()), key=lambda im: im.name

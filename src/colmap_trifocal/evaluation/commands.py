@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 from pathlib import Path
 
 import numpy as np
 
+from ..common.arguments import finite_float, seed
 from ..common.errors import CalibrationError
+from ..common.files import file_identity, refuse_overwriting_input
 from ..datasets import DATASET_KINDS, read_scene
 from .protocol import DEFAULT_METHODS, EVALUATION_METHODS, EvaluationOptions, evaluate_scene
 from .records import RunRecord
@@ -51,14 +54,16 @@ def add_synthetic_parser(commands: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--runs", type=int, default=100)
     parser.add_argument("--points", type=int, default=500, help="tracks per scene")
-    parser.add_argument("--perturbation", type=float, default=5.0, help="prior ±%% (default 5)")
+    parser.add_argument(
+        "--perturbation", type=finite_float, default=5.0, help="prior ±%% (default 5)"
+    )
     parser.add_argument("--outliers", type=float, default=0.0, help="outlier track fraction")
     parser.add_argument("--methods", default=",".join(SYNTHETIC_METHODS))
     _add_common(parser, "synthetic")
 
 
 def _add_common(parser: argparse.ArgumentParser, stem: str) -> None:
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=seed, default=0)
     parser.add_argument(
         "--output",
         type=Path,
@@ -79,6 +84,8 @@ def _numbers(text: str, name: str, kind: type = float) -> list:
         ) from None
     if not values:
         raise CalibrationError(f"{name} is empty")
+    if not all(math.isfinite(v) for v in values):
+        raise CalibrationError(f"invalid {name} {text!r}: values must be finite")
     return values
 
 
@@ -91,8 +98,10 @@ def _ranges(text: str) -> tuple[tuple[float, float], ...]:
             raise CalibrationError(
                 f"malformed --perturbation {part!r}: expected LOW-HIGH in percent, e.g. 0-5"
             ) from None
-        if not 0 <= low <= high:
-            raise CalibrationError(f"invalid --perturbation {part!r}: need 0 <= LOW <= HIGH")
+        if not 0 <= low <= high < 100:
+            raise CalibrationError(
+                f"invalid --perturbation {part!r}: need 0 <= LOW <= HIGH < 100 (percent)"
+            )
         ranges.append((low, high))
     return tuple(ranges)
 
@@ -112,6 +121,37 @@ def _check_outputs(args: argparse.Namespace) -> None:
         raise CalibrationError("--runs must be at least 1")
     if args.json is not None and not args.json.parent.is_dir():
         raise CalibrationError(f"cannot write --json: folder {args.json.parent} does not exist")
+
+
+def _refuse_overwriting_dataset(args: argparse.Namespace, stem: str) -> None:
+    """Refuse outputs that are files of the dataset (or of the cache) being evaluated.
+
+    Every regular file below ``PATH`` and ``--cache`` counts as an input, except files
+    no dataset reader reads: JSON files and this command's own outputs
+    (``evaluation.csv``, ``.md``, ``.png``), which a rerun replaces. Compared by file
+    identity, so symlinks and hard links are caught.
+    """
+    own = {f"{stem}.csv", f"{stem}.md", f"{stem}.png"}
+    outputs = {"--output": [args.output / name for name in sorted(own)], "--json": [args.json]}
+    targets = {
+        file_identity(path): (option, path)
+        for option, paths in outputs.items()
+        for path in paths
+        if path is not None and file_identity(path) is not None
+    }
+    if not targets:
+        return
+    for folder in (args.path, args.cache):
+        if folder is None or not Path(folder).exists():
+            continue
+        files = [Path(folder)] if Path(folder).is_file() else Path(folder).rglob("*")
+        for path in files:
+            if path.suffix.lower() == ".json" or path.name in own or not path.is_file():
+                continue
+            hit = targets.get(file_identity(path))
+            if hit is not None:
+                option, output = hit
+                refuse_overwriting_input(output, [path], option, "a file of the dataset")
 
 
 def _finish(records: list[RunRecord], args: argparse.Namespace, stem: str, title: str) -> None:
@@ -146,6 +186,7 @@ def scenes_at(kind: str, path: Path) -> list:
 
 def run_evaluate(args: argparse.Namespace, progress: bool) -> int:
     _check_outputs(args)
+    _refuse_overwriting_dataset(args, "evaluation")
     options = EvaluationOptions(
         image_counts=tuple(_numbers(args.images, "--images", int)),
         perturbations=_ranges(args.perturbation),
@@ -162,9 +203,13 @@ def run_evaluate(args: argparse.Namespace, progress: bool) -> int:
     if min(options.image_counts) < 3:
         raise CalibrationError("--images: every sequence needs at least 3 images")
     start = time.perf_counter()
-    records = [
-        r for scene in scenes_at(args.kind, args.path) for r in evaluate_scene(scene, options)
-    ]
+    scenes = scenes_at(args.kind, args.path)
+    for scene in scenes:  # all checked before the first (long) evaluation
+        if not Path(scene.image_dir).is_dir():
+            raise CalibrationError(
+                f"scene {scene.name}: image folder {scene.image_dir} does not exist"
+            )
+    records = [r for scene in scenes for r in evaluate_scene(scene, options)]
     _finish(records, args, "evaluation", f"{args.kind}: {args.runs} runs")
     print(f"{len(records)} results in {time.perf_counter() - start:.0f} s")
     return 0
@@ -180,6 +225,8 @@ def run_synthetic(args: argparse.Namespace, progress: bool) -> int:
     noise_levels = _numbers(args.noise, "--noise")
     if min(noise_levels) < 0:
         raise CalibrationError("--noise levels must be >= 0")
+    if not 0 <= args.perturbation < 100:
+        raise CalibrationError("--perturbation must be in [0, 100) percent")
     if args.points < 10:
         raise CalibrationError("--points must be at least 10")
     if not 0 <= args.outliers < 1:

@@ -24,7 +24,12 @@ from ..common.errors import CalibrationError
 from ..common.log import logger
 from ..common.parallel import map_jobs
 from ..database.camera_groups import GROUPINGS, CameraGroup, group_cameras
-from ..database.cameras import CameraInfo, check_supported, undistort_to_pinhole
+from ..database.cameras import (
+    PINHOLE_MODELS,
+    CameraInfo,
+    check_supported,
+    undistort_to_pinhole,
+)
 from ..database.snapshot import DatabaseContents, read_database, write_intrinsics
 from ..geometry.tensor_estimation import (
     TensorEstimationOptions,
@@ -111,6 +116,12 @@ class CalibrationOptions:
     restart: bool = True
 
 
+#: Starting focal lengths, as multiples of the image's larger side (see check_prior).
+PRIOR_FOCAL_RANGE = (0.01, 100.0)
+#: Largest distance of a starting principal point from the image centre, in image sizes.
+PRIOR_PRINCIPAL_POINT_RANGE = 1.5
+
+
 def parse_prior(text: str) -> tuple[float, float, float, float]:
     """Parse ``FX,FY,CX,CY`` (pixels); CalibrationError on anything else."""
     parts = [p.strip() for p in text.split(",")]
@@ -129,6 +140,58 @@ def parse_prior(text: str) -> tuple[float, float, float, float]:
             f"invalid --prior {text!r}: values must be finite and focal lengths positive"
         )
     return values  # type: ignore[return-value]
+
+
+def check_camera_values(camera: CameraInfo, uses_stored: bool) -> None:
+    """Refuse a camera whose stored values the calibration cannot start from.
+
+    The image size must be positive. The stored params must be finite with positive
+    focal lengths when they are used: as the prior (``uses_stored``) or to undistort the
+    keypoints (any model with distortion parameters).
+    """
+    if camera.width < 1 or camera.height < 1:
+        raise CalibrationError(
+            f"camera {camera.camera_id} has an image size of {camera.width}x{camera.height} "
+            "pixels (corrupt database?)"
+        )
+    if not uses_stored and camera.model in PINHOLE_MODELS:
+        return
+    fx, fy, _, _ = camera.intrinsics
+    if not np.all(np.isfinite(camera.params)) or not (fx > 0 and fy > 0):
+        values = ", ".join(f"{v:.6g}" for v in camera.params)
+        raise CalibrationError(
+            f"camera {camera.camera_id}: the stored params ({values}) are not usable "
+            "(not finite, or a focal length <= 0)"
+            + ("; give --prior or --no-prior" if camera.model in PINHOLE_MODELS else "")
+        )
+
+
+def check_prior(prior: np.ndarray, camera: CameraInfo, source: str) -> None:
+    """Refuse starting intrinsics (fx, fy, cx, cy; pixels) that no camera of this size has.
+
+    Focal lengths must lie within ``PRIOR_FOCAL_RANGE`` times the image's larger side
+    (0.01: a field of view far beyond 180°; 100: below 0.6°) and the principal point
+    within ``PRIOR_PRINCIPAL_POINT_RANGE`` image sizes of the image centre. Outside,
+    the arithmetic overflows or loses all precision long before a tensor is estimated.
+    """
+    side = float(max(camera.width, camera.height))
+    low, high = PRIOR_FOCAL_RANGE[0] * side, PRIOR_FOCAL_RANGE[1] * side
+    fx, fy, cx, cy = (float(v) for v in prior)
+    size = np.array([camera.width, camera.height], float)
+    offset = np.abs(np.array([cx, cy]) - size / 2) / size
+    if not (
+        np.all(np.isfinite(prior))
+        and low <= fx <= high
+        and low <= fy <= high
+        and np.all(offset <= PRIOR_PRINCIPAL_POINT_RANGE)
+    ):
+        raise CalibrationError(
+            f"camera {camera.camera_id}: invalid starting intrinsics from {source}: "
+            f"fx = {fx:.6g}, fy = {fy:.6g}, cx = {cx:.6g}, cy = {cy:.6g} px; for a "
+            f"{camera.width}x{camera.height} image the focal lengths must lie in "
+            f"[{low:.6g}, {high:.6g}] px and the principal point within "
+            f"{PRIOR_PRINCIPAL_POINT_RANGE:g} image sizes of the centre"
+        )
 
 
 def default_guess(width: int, height: int) -> np.ndarray:
@@ -375,14 +438,19 @@ def calibrate_camera(
             camera.intrinsics[0],
             checked,
         )
+    check_camera_values(camera, uses_stored=options.prior is None and not options.no_prior)
     if options.no_prior:
         prior = default_guess(camera.width, camera.height)
+        prior_origin = "--no-prior"
     elif options.prior is not None:
         prior = np.asarray(options.prior, float)
+        prior_origin = "--prior"
     else:
         prior = np.asarray(camera.intrinsics, float)
+        prior_origin = "the stored camera (give --prior or --no-prior)"
     if camera.single_focal:
         prior[:2] = prior[:2].mean()
+    check_prior(prior, camera, prior_origin)
     own_camera = {
         i: contents.cameras.get(contents.image_camera.get(i, -1), camera) for i in image_ids
     }

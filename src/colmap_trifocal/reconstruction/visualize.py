@@ -36,6 +36,7 @@ import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
+from .model_files import check_binary_model
 
 if TYPE_CHECKING:
     import open3d
@@ -95,9 +96,10 @@ def load_model(path: Path) -> pycolmap.Reconstruction:
     ]
     if missing:
         raise CalibrationError(f"not a COLMAP model (no {', '.join(missing)} .bin/.txt) in {path}")
+    check_binary_model(path)  # before pycolmap, which trusts the counts in the files
     try:
         return pycolmap.Reconstruction(str(path))
-    except (ValueError, RuntimeError, MemoryError, OSError) as exc:
+    except (ValueError, RuntimeError, MemoryError, OSError, IndexError) as exc:
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise CalibrationError(f"cannot read the COLMAP model in {path}: {reason}") from exc
 

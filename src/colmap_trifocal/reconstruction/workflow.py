@@ -18,6 +18,7 @@ Stages, each timed in ``report.json``:
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import sys
 import tempfile
@@ -30,11 +31,11 @@ import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
-from ..common.files import write_text_atomically
+from ..common.files import refuse_overwriting_input, write_text_atomically
 from ..common.log import logger
 from ..database.features import build_database
 from ..database.shared_cameras import merge_group_cameras
-from ..database.snapshot import read_database, write_intrinsics
+from ..database.snapshot import copy_database, read_database, write_intrinsics
 from ..intrinsics.calibrate import (
     PARAMETER_NAMES,
     CalibrationOptions,
@@ -51,6 +52,7 @@ from .mapping import (
     refine_intrinsics,
     registered_images_per_camera,
 )
+from .visualize import load_model
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
 WORKSPACE_OUTPUTS = ("database.db", "sparse", "report.json")
@@ -117,6 +119,33 @@ def prepare_workspace(workspace: Path, overwrite: bool) -> None:
                 target.unlink()
 
 
+def check_inputs_survive(workspace: Path, options: RunOptions) -> None:
+    """Refuse a ``--database`` or ``--model`` that this run would overwrite or delete.
+
+    The workspace's outputs (``database.db``, ``sparse/``, ``report.json``) are written,
+    and with ``--overwrite`` removed first: an input may be none of them (also not
+    through a symlink or a hard link) and may not lie inside ``sparse/``.
+    """
+    outputs = [workspace / name for name in WORKSPACE_OUTPUTS]
+    inputs = {"--database": options.database, "--model": options.model}
+    for option, given in inputs.items():
+        if given is None:
+            continue
+        for output in outputs:
+            refuse_overwriting_input(output, [given], "WORKSPACE output", f"the {option} input")
+            if output.is_dir() and _inside(given, output):
+                raise CalibrationError(
+                    f"{option} {given} is inside the workspace output {output}: "
+                    "refusing to overwrite it (use another WORKSPACE)"
+                )
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    """``path`` is ``folder`` or lies below it (symlinks resolved)."""
+    resolved, base = Path(os.path.realpath(path)), Path(os.path.realpath(folder))
+    return resolved == base or base in resolved.parents
+
+
 def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> dict:
     """Run all stages; returns the report (also written to ``WORKSPACE/report.json``)."""
     if options.refine not in REFINE_CHOICES:
@@ -127,6 +156,8 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
         raise CalibrationError(f"unknown --mapper {options.mapper!r} (choose from {MAPPERS})")
     if options.model is not None and options.database is None:
         raise CalibrationError("--model needs the --database its images were matched in")
+    check_inputs_survive(workspace, options)
+    given_model = load_model(options.model) if options.model is not None else None
     names = list_images(images) if images is not None and options.database is None else None
     prepare_workspace(workspace, options.overwrite)
     database = workspace / "database.db"
@@ -135,7 +166,7 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
     start = time.perf_counter()
     if options.database is not None:
         contents = read_database(options.database)  # validated (one-line errors), then copied
-        shutil.copyfile(options.database, database)
+        copy_database(options.database, database)  # with what is still in its -wal
     else:
         assert images is not None and names is not None
         _stage(f"features and matching for {len(names)} images (pycolmap SIFT)", options.progress)
@@ -168,8 +199,8 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
     seconds["calibrate"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    if options.model is not None:
-        reconstruction = pycolmap.Reconstruction(options.model)
+    if given_model is not None:
+        reconstruction = given_model
         for camera_id, camera in updated.items():
             if camera_id in reconstruction.cameras:
                 reconstruction.cameras[camera_id].params = camera.params

@@ -1,0 +1,31 @@
+"""argparse value types that reject what the pipeline cannot use (one ``error:`` line)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+#: Seeds go to numpy (any integer >= 0) and to COLMAP's mappers (a C++ ``int``).
+MAX_SEED = 2**31 - 1
+
+
+def seed(text: str) -> int:
+    """A random seed: an integer from 0 to ``MAX_SEED``."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer seed, got {text!r}") from None
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"seed must be in [0, {MAX_SEED}], got {value}")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """A finite number (no nan, no inf)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
