@@ -77,6 +77,14 @@ class CameraCalibration:
     #: Per parameter: estimated from the images (False: tied or held at the prior).
     estimated: dict[str, bool] = field(default_factory=lambda: dict.fromkeys(PARAMETER_NAMES, True))
     unconstrained_std: dict[str, float | None] = field(default_factory=dict)
+    #: Per parameter, where its value comes from: ``trifocal`` (the constraints),
+    #: ``tied`` (fy = fx), ``focal-search`` or ``prior`` (held at that estimate).
+    source: dict[str, str] = field(default_factory=dict)
+    #: The focal search's result: focal length and std (pixels), whether its cost
+    #: curve was decisive and whether it replaced the prior's focal length.
+    focal_search: dict | None = None
+    #: The cause of undetermined parameters the data shows (:mod:`.diagnosis`), or None.
+    diagnosis: str | None = None
     triplets: list[TripletReport] = field(default_factory=list)
     tensors: list[TripletTensor] = field(default_factory=list, repr=False)
     #: The camera as stored in the database (model, size, distortion), for writing.
