@@ -29,6 +29,7 @@ from ..geometry.tensor_estimation import (
 )
 from ..geometry.tracks import MatchGraph, Triplet, select_triplets
 from ..geometry.trifocal import intrinsics_matrix
+from .diagnosis import diagnose
 from .focal_search import FocalSearchResult, search_focal
 from .fundamental import calibrate_from_fundamentals
 from .observability import FALLBACK_FACTOR, default_held_std, tolerance
@@ -402,6 +403,7 @@ def _solve_camera(
     std = fallback.relative_std * focal_scale
     unconstrained = fallback.unconstrained.relative_std * focal_scale
     source = parameter_sources(estimated, model, held_source)
+    diagnosis = None if all(observable.values()) else diagnose(prepared.tracks, estimate)
     reported_std = {
         name: finite_or_none(s) if estimated[name] else None
         for name, s in zip(PARAMETER_NAMES, std, strict=True)
@@ -430,6 +432,7 @@ def _solve_camera(
         estimated=estimated,
         source=source,
         focal_search=_search_summary(prepared.search),
+        diagnosis=diagnosis,
         unconstrained_std={
             name: finite_or_none(s) for name, s in zip(PARAMETER_NAMES, unconstrained, strict=True)
         },

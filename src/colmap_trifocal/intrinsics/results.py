@@ -134,9 +134,10 @@ class CameraCalibration:
                     reasons.append(f"{name} (no information)")
                 else:
                     reasons.append(f"{name} (std {std:.0f} px)")
+            hint = f" ({self.diagnosis})" if self.diagnosis else _motion_hint(fixed)
             parts.append(
                 f"{', '.join(reasons)} not determined by these images"
-                f"{_motion_hint(fixed)}; {'; '.join(self.assumptions)}"
+                f"{hint}; {'; '.join(self.assumptions)}"
             )
         if weak:
             stds = ", ".join(
@@ -144,6 +145,8 @@ class CameraCalibration:
                 for name in weak
             )
             parts.append(f"{stds} only weakly determined, kept as estimated")
+            if not fixed and self.diagnosis:
+                parts[-1] += f" ({self.diagnosis})"
         return f"camera {self.camera_id}: " + "; ".join(parts)
 
 
