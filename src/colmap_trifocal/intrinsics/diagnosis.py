@@ -11,9 +11,11 @@ this module says *why*, from the triplets' tracks measured with the estimate K
 * **pure translation / forward motion**: the relative rotations (essential matrix,
   OpenCV 5-point RANSAC and ``recoverPose``) are all below ``MIN_ROTATION_DEG``;
   forward when the translation is mostly along the optical axis;
-* **rotation about one axis**: the rotation axes of the pairs that do rotate lie
-  within ``AXIS_SPREAD_DEG`` of one axis (planar motion: a car turning, an orbit
-  at constant height); the axis is named in camera coordinates.
+* **rotation about one axis**: at least ``ONE_AXIS_FRACTION`` of the squared
+  rotation (rotation vectors of all pairs) is about one axis (planar motion: a
+  car turning, an orbit at constant height); the axis is named in camera
+  coordinates. Small rotations have noisy axes, so the vectors are weighted by
+  their angle rather than each axis counted alike.
 
 Rotations only need K roughly right (a few percent), which every estimate that
 reaches this stage is. Each finding is a short phrase with the measured figure.
@@ -30,7 +32,7 @@ MIN_TRACKS = 80
 HOMOGRAPHY_PX = 2.0
 PLANAR_FRACTION = 0.8
 MIN_ROTATION_DEG = 1.0
-AXIS_SPREAD_DEG = 10.0
+ONE_AXIS_FRACTION = 0.95
 FORWARD_COSINE = 0.9
 #: Triplets examined at most (the first selected ones).
 MAX_TRIPLETS = 8
@@ -69,7 +71,7 @@ def diagnose(tracks: list[np.ndarray], intrinsics: np.ndarray) -> str:
     findings = []
     if np.median(counts) < MIN_TRACKS:
         findings.append(f"too few tracks (median {np.median(counts):.0f} per triplet)")
-    fractions, angles, axes, forward = [], [], [], []
+    fractions, angles, vectors, forward = [], [], [], []
     for x in tracks[:MAX_TRIPLETS]:
         pixels = np.ascontiguousarray(x, dtype=np.float64)
         normalised = pixels @ K_inv[:2, :2].T + K_inv[:2, 2]
@@ -82,8 +84,7 @@ def diagnose(tracks: list[np.ndarray], intrinsics: np.ndarray) -> str:
             rotation_vector = cv2.Rodrigues(R)[0].ravel()
             angle = np.linalg.norm(rotation_vector)
             angles.append(np.rad2deg(angle))
-            if np.rad2deg(angle) >= MIN_ROTATION_DEG:
-                axes.append(rotation_vector / angle)
+            vectors.append(rotation_vector)
             forward.append(abs(t[2]))
     if fractions and np.median(fractions) >= PLANAR_FRACTION:
         findings.append(
@@ -97,8 +98,8 @@ def diagnose(tracks: list[np.ndarray], intrinsics: np.ndarray) -> str:
                 findings.append(f"forward motion with little rotation (at most {largest:.1f}°)")
             else:
                 findings.append(f"pure translation (rotation at most {largest:.1f}°)")
-        elif _one_axis(np.array(axes)):
-            mean = _mean_axis(np.array(axes))
+        elif _one_axis(np.array(vectors)):
+            mean = _principal_axis(np.array(vectors))
             name = "xyz"[int(np.argmax(np.abs(mean)))]
             findings.append(
                 f"rotation about one axis (camera {name}, up to {largest:.0f}° between views)"
@@ -106,14 +107,13 @@ def diagnose(tracks: list[np.ndarray], intrinsics: np.ndarray) -> str:
     return "; ".join(findings) if findings else "no degenerate motion found"
 
 
-def _mean_axis(axes: np.ndarray) -> np.ndarray:
-    """Principal direction of unit axes (m, 3) (sign-free)."""
-    return np.linalg.eigh(axes.T @ axes)[1][:, -1]
+def _principal_axis(vectors: np.ndarray) -> np.ndarray:
+    """Principal direction (3,) of rotation vectors (m, 3) (sign-free)."""
+    return np.linalg.eigh(vectors.T @ vectors)[1][:, -1]
 
 
-def _one_axis(axes: np.ndarray) -> bool:
-    """Whether every axis (m, 3) lies within AXIS_SPREAD_DEG of their principal direction."""
-    if len(axes) == 0:
-        return False
-    cosines = np.abs(axes @ _mean_axis(axes))
-    return bool(np.all(cosines >= np.cos(np.deg2rad(AXIS_SPREAD_DEG))))
+def _one_axis(vectors: np.ndarray) -> bool:
+    """Whether ONE_AXIS_FRACTION of the squared rotation (m, 3) is about one axis."""
+    scatter = vectors.T @ vectors
+    total = float(np.trace(scatter))
+    return total > 0 and float(np.linalg.eigvalsh(scatter)[-1]) >= ONE_AXIS_FRACTION * total

@@ -12,7 +12,10 @@ initial pair or registers fewer than ``MIN_REGISTERED_FRACTION`` of the images,
 it is retried with a smaller ``mapper.init_min_tri_angle`` (16° → 8° → 4°,
 ``INIT_TRI_ANGLES``). Driving sequences see little parallax between the frames
 of a candidate pair: on a straight 51-frame KITTI drive COLMAP's 16° found no
-initial pair even with the true K, 4° registered all frames.
+initial pair even with the true K, 4° registered all frames. COLMAP relaxes by
+itself only when no model at all results (``init_min_num_inliers`` and
+``init_min_tri_angle`` halved twice each, so 16° → 4°); a model of a few
+images, which a driving sequence often gives, is not retried there.
 """
 
 from __future__ import annotations
