@@ -395,7 +395,9 @@ def _solve_camera(
     if model != base:
         logger.info("camera %d: assumed %s", camera.camera_id, "; ".join(model.assumptions()))
     estimated = model.estimated(camera.single_focal)
-    within = fallback.relative_std < fallback.tolerances
+    # Determined: estimated, std within tolerance (held values' uncertainty counted)
+    # and actually moved by the data (:func:`.selfcalibration.data_moves`).
+    within = (fallback.relative_std < fallback.tolerances) & fallback.moved
     observable = {
         name: estimated[name] and bool(ok) for name, ok in zip(PARAMETER_NAMES, within, strict=True)
     }

@@ -434,6 +434,9 @@ class FallbackSolution:
     #: (4,) how much each estimated θ moved when the held values were moved by their
     #: std (:func:`held_value_sensitivity`; zero where nothing is held).
     held_shift: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    #: (4,) whether the data pulls each estimated parameter back when the solve
+    #: starts away from the estimate (:func:`data_moves`); True for held ones.
+    moved: np.ndarray = field(default_factory=lambda: np.ones(4, dtype=bool))
 
 
 def solve_with_fallback(
@@ -492,7 +495,50 @@ def solve_with_fallback(
         )
         conditional = np.where(np.isfinite(solution.relative_std), solution.relative_std, np.inf)
         std = np.maximum(std, np.hypot(conditional, shift))
-    return FallbackSolution(solution, model, unconstrained, std, tolerances, shift)
+    moved = np.ones(4, dtype=bool)
+    if method != "direct" and model.dimension > 0:
+        moved = data_moves(tensors, method, model, start, held, solution.theta, tolerances, tau)
+    return FallbackSolution(solution, model, unconstrained, std, tolerances, shift, moved)
+
+
+#: :func:`data_moves` starts this many tolerances away from the estimate ...
+MOVE_TEST_OFFSET = 3.0
+#: ... and a parameter counts as moved by the data when the solve brings it back
+#: by at least this fraction of the offset.
+MOVE_TEST_RECOVERY = 0.5
+
+
+def data_moves(
+    tensors: list[TripletTensor],
+    method: str,
+    model: Model,
+    start: np.ndarray,
+    held: np.ndarray,
+    theta: np.ndarray,
+    tolerances: np.ndarray,
+    tau: float = MSAC_TAU,
+) -> np.ndarray:
+    """Whether the data moves each estimated parameter (4,): a parameter the data does
+    not move from its start is not determined, whatever its std says.
+
+    The model is re-solved from the estimate with every estimated parameter offset
+    by ``MOVE_TEST_OFFSET`` tolerances (alternating signs); a parameter the
+    constraints determine returns at least ``MOVE_TEST_RECOVERY`` of the way.
+    Held parameters count as moved (they are not estimated).
+    """
+    parametrization = model.parametrization(start, held)
+    free = parametrization.free(theta)
+    signs = np.array([1.0, 1.0, -1.0, 1.0])
+    offset_theta = MOVE_TEST_OFFSET * tolerances * signs
+    offset_free = parametrization.free(theta + offset_theta) - free
+    # Same unknowns, p = 0 now at the offset estimate.
+    shifted = Parametrization(parametrization.matrix, parametrization.theta(free + offset_free))
+    result = solve(tensors, method, shifted, tau).theta
+    applied = shifted.offset - theta
+    recovered = np.abs(applied) - np.abs(result - theta)
+    estimated = np.abs(parametrization.matrix).sum(axis=1) > 0
+    moved = recovered >= MOVE_TEST_RECOVERY * np.abs(applied)
+    return np.where(estimated & (np.abs(applied) > 0), moved, True)
 
 
 def held_value_sensitivity(
