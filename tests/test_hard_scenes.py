@@ -113,7 +113,7 @@ def _planar_facade(seed: int = 0) -> SyntheticScene:
     ("make", "cause"),
     [
         (lambda: forward_driving(seed=0, yaw_deg=0.0), "forward motion with little rotation"),
-        (lambda: driving_turn(seed=0), "rotation about one axis (camera y"),
+        (lambda: driving_turn(seed=0), "rotation about one axis (planar motion; camera y"),
         (lambda: pure_translation(seed=0), "pure translation"),
         (lambda: _planar_facade(0), "planar structure"),
         (lambda: general_motion(seed=0), "no degenerate motion found"),

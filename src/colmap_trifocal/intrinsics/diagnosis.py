@@ -63,7 +63,7 @@ def diagnose(tracks: list[np.ndarray], intrinsics: np.ndarray) -> str:
         intrinsics: (fx, fy, cx, cy) of the estimate, pixels.
 
     Returns:
-        e.g. ``"rotation about one axis (camera y, 12° between views)"``; ``"no
+        e.g. ``"rotation about one axis (planar motion; camera y, up to 12° between views)"``; ``"no
         degenerate motion found"`` when none of the causes applies.
     """
     K_inv = np.linalg.inv(intrinsics_matrix(np.asarray(intrinsics, float)))
@@ -102,7 +102,8 @@ def diagnose(tracks: list[np.ndarray], intrinsics: np.ndarray) -> str:
             mean = _principal_axis(np.array(vectors))
             name = "xyz"[int(np.argmax(np.abs(mean)))]
             findings.append(
-                f"rotation about one axis (camera {name}, up to {largest:.0f}° between views)"
+                f"rotation about one axis (planar motion; camera {name}, up to {largest:.0f}° "
+                "between views)"
             )
     return "; ".join(findings) if findings else "no degenerate motion found"
 
