@@ -17,6 +17,9 @@ from .parametrization import PARAMETER_NAMES
 
 __all__ = ["PARAMETER_NAMES", "CameraCalibration", "TripletReport"]
 
+#: What :func:`.diagnosis.diagnose` says when the tracks show no known cause.
+NO_CAUSE = "no degenerate motion found"
+
 
 @dataclass
 class TripletReport:
@@ -134,7 +137,11 @@ class CameraCalibration:
                     reasons.append(f"{name} (no information)")
                 else:
                     reasons.append(f"{name} (std {std:.0f} px)")
-            hint = f" ({self.diagnosis})" if self.diagnosis else _motion_hint(fixed)
+            hint = _motion_hint(fixed)
+            if self.diagnosis and self.diagnosis != NO_CAUSE:
+                hint = f" ({self.diagnosis})"
+            elif self.diagnosis:
+                hint = f" ({NO_CAUSE} in the tracks; {hint[2:]}"
             parts.append(
                 f"{', '.join(reasons)} not determined by these images"
                 f"{hint}; {'; '.join(self.assumptions)}"
@@ -145,7 +152,7 @@ class CameraCalibration:
                 for name in weak
             )
             parts.append(f"{stds} only weakly determined, kept as estimated")
-            if not fixed and self.diagnosis:
+            if not fixed and self.diagnosis and self.diagnosis != NO_CAUSE:
                 parts[-1] += f" ({self.diagnosis})"
         return f"camera {self.camera_id}: " + "; ".join(parts)
 
