@@ -1,7 +1,8 @@
 """Observability on camera motions that hide intrinsics (synthetic sequences).
 
-For each motion (forward driving with a yaw amplitude, an orbit at constant
-height, pure translation, general motion) and noise level: N seeded sequences
+For each motion (forward driving with a yaw amplitude, a drive turning a 90°
+corner, an orbit at constant height, pure translation, general motion, 10° and
+100° lenses) and noise level: N seeded sequences
 (10 or 8 images), a prior with every parameter 5 % off (random signs), msac-opt.
 Prints per parameter how often it was reported observable, the largest error of
 an observable parameter, how many runs reported an observable parameter worse
@@ -20,7 +21,8 @@ from tqdm import tqdm
 from colmap_trifocal import CalibrationOptions, calibrate_contents
 from colmap_trifocal.intrinsics.results import PARAMETER_NAMES
 from colmap_trifocal.synthetic.database import scene_contents
-from colmap_trifocal.synthetic.motions import forward_driving, motion_scene
+from colmap_trifocal.synthetic.lenses import narrow_lens, wide_lens
+from colmap_trifocal.synthetic.motions import driving_turn, forward_driving, motion_scene
 from colmap_trifocal.synthetic.scenes import SyntheticScene
 
 
@@ -53,6 +55,10 @@ def main() -> None:
     for motion in ("planar", "translation", "general"):
         for seed in range(args.seeds):
             cases.append((f"{motion}, 0.5 px", motion_scene(motion, noise_px=0.5, seed=seed), seed))
+    extra = {"turn 90°": driving_turn, "10° lens": narrow_lens, "100° lens": wide_lens}
+    for label, make in extra.items():
+        for seed in range(args.seeds):
+            cases.append((f"{label}, 0.5 px", make(noise_px=0.5, seed=seed), seed))
     rows: dict[str, list] = {}
     for label, scene, seed in tqdm(cases, desc="sequences"):
         rows.setdefault(label, []).append(run_case(scene, seed))

@@ -54,12 +54,16 @@ def test_calibration_from_a_prior_50_percent_off(tmp_path: Path) -> None:
     (result,) = calibrate_database(path, CalibrationOptions(prior=prior))
     np.testing.assert_allclose(result.intrinsics, truth, rtol=1e-5)
     assert result.prior == prior
-    # Without the re-estimation, the tensors start from the searched focal length
-    # (square pixels) and the prior's principal point.
+    # Without the re-estimation: with the prior's principal point 6 % off, the calibrated
+    # hypotheses fit poorly at every focal length (costs 79–95 of at most 96 px²), so
+    # the tracks do not clearly favour the search's minimum (3 % off, cost ratio 1.15
+    # against the prior's, not decisive) and the prior stays the start (issue 13: a
+    # flat curve must not replace a prior). The search's estimate is still reported.
     (searched,) = calibrate_database(path, CalibrationOptions(prior=prior, restart=False))
-    assert searched.start[0] == searched.start[1]
-    assert abs(searched.start[0] / np.sqrt(truth[0] * truth[1]) - 1) < 0.12  # one grid step
-    assert searched.start[2:] == prior[2:]
+    assert searched.focal_search is not None and not searched.focal_search["used"]
+    assert not searched.focal_search["decisive"]
+    assert abs(searched.focal_search["focal"] / np.sqrt(truth[0] * truth[1]) - 1) < 0.06
+    assert searched.start == prior
     (held,) = calibrate_database(
         path, CalibrationOptions(prior=prior, focal_search=False, restart=False)
     )

@@ -45,10 +45,11 @@ from ..geometry.tracks import (
     select_triplets,
 )
 from ..geometry.trifocal import intrinsics_matrix
-from .focal_search import search_focal
+from .diagnosis import diagnose
+from .focal_search import FocalSearchResult, search_focal
 from .fundamental import calibrate_from_fundamentals
 from .group_results import GroupCalibration, SkippedGroup
-from .observability import FALLBACK_FACTOR, tolerance
+from .observability import FALLBACK_FACTOR, default_held_std, tolerance
 from .parametrization import FULL, SINGLE_FOCAL
 from .results import PARAMETER_NAMES, CameraCalibration, TripletReport, finite_or_none
 from .selfcalibration import (
@@ -410,6 +411,8 @@ class _PreparedTensors:
     start: np.ndarray
     tensors: list[TripletTensor]
     seconds: float
+    #: The focal search's outcome (None: not run).
+    search: FocalSearchResult | None = None
 
 
 def calibrate_camera(
@@ -506,6 +509,7 @@ def _prepare_tensors(
     ]
     seeds = np.random.SeedSequence(options.seed).spawn(len(triplets) + 1)
     start = data.prior.copy()
+    found = None
     if options.focal_search:
         found = search_focal(
             tracks[: options.search_triplets],
@@ -514,13 +518,46 @@ def _prepare_tensors(
             options.tensor.inlier_threshold_px,
             workers=options.workers,
             progress=options.progress,
+            image_size=(camera.width, camera.height),
         )
-        start[:2] = found.focal
-        logger.info("camera %d: focal search: %.1f px", camera.camera_id, found.focal)
+        if found.improves_on_start:
+            start[:2] = found.focal
+        logger.info(
+            "camera %d: focal search: %.1f px (std %.1f %%, %s, %s)",
+            camera.camera_id,
+            found.focal,
+            100 * found.relative_std,
+            "decisive" if found.decisive else "not decisive",
+            "used" if found.improves_on_start else "the start explains the tracks as well: kept",
+        )
     tensors = _estimate_tensors(triplets, tracks, start, seeds[:-1], camera, options)
     return _PreparedTensors(
-        triplets, tracks, seeds[:-1], start, tensors, time.perf_counter() - clock
+        triplets, tracks, seeds[:-1], start, tensors, time.perf_counter() - clock, found
     )
+
+
+def held_values(
+    prior: np.ndarray, search: FocalSearchResult | None
+) -> tuple[np.ndarray, np.ndarray, str]:
+    """What undetermined parameters are held at: the best estimate the run has.
+
+    The focal search's focal length when the tracks favour it over the prior
+    (:attr:`.FocalSearchResult.improves_on_start`; the prior's aspect ratio kept),
+    else the prior's. The principal point is always the prior's.
+
+    Returns:
+        (fx, fy, cx, cy) in pixels, their std relative to the focal length (θ
+        units; a prior's assumed :func:`.observability.default_held_std`), and the
+        source of the focal length (``"focal-search"`` or ``"prior"``).
+    """
+    held = np.asarray(prior, float).copy()
+    std = default_held_std()
+    if search is None or not search.improves_on_start:
+        return held, std, "prior"
+    aspect = np.sqrt(held[1] / held[0])
+    held[:2] = search.focal / aspect, search.focal * aspect
+    std[:2] = search.relative_std
+    return held, std, "focal-search"
 
 
 def _solve_camera(
@@ -535,10 +572,12 @@ def _solve_camera(
     camera = data.camera
     base = SINGLE_FOCAL if camera.single_focal else FULL
 
+    held, held_std, held_source = held_values(data.prior, prepared.search)
+
     def solve_from(start: np.ndarray, tensors: list[TripletTensor]) -> FallbackSolution:
         tolerances = tolerance(start, camera.width, camera.height)
         return solve_with_fallback(
-            tensors, method, base, start, data.prior, tolerances, options.tau
+            tensors, method, base, start, held, tolerances, options.tau, held_std
         )
 
     start, tensors = prepared.start, prepared.tensors
@@ -568,30 +607,46 @@ def _solve_camera(
     if model != base:
         logger.info("camera %d: assumed %s", camera.camera_id, "; ".join(model.assumptions()))
     estimated = model.estimated(camera.single_focal)
-    within = fallback.relative_std < fallback.tolerances
+    # Determined: estimated, std within tolerance (held values' uncertainty counted)
+    # and actually moved by the data (:func:`.selfcalibration.data_moves`).
+    within = (fallback.relative_std < fallback.tolerances) & fallback.moved
     observable = {
         name: estimated[name] and bool(ok) for name, ok in zip(PARAMETER_NAMES, within, strict=True)
     }
     focal_scale = np.array([start[0], start[1], start[0], start[1]])
     std = fallback.relative_std * focal_scale
     unconstrained = fallback.unconstrained.relative_std * focal_scale
+    source = parameter_sources(estimated, model, held_source)
+    diagnosis = None if all(observable.values()) else diagnose(prepared.tracks, estimate)
+    reported_std = {
+        name: finite_or_none(s) if estimated[name] else None
+        for name, s in zip(PARAMETER_NAMES, std, strict=True)
+    }
+    for index, name in enumerate(PARAMETER_NAMES):
+        if source[name] == "focal-search":
+            reported_std[name] = float(held_std[index] * held[index])
     return CameraCalibration(
         camera_id=camera.camera_id,
         model=camera.model,
         method=method,
         **dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True)),
-        std={
-            name: finite_or_none(s) if estimated[name] else None
-            for name, s in zip(PARAMETER_NAMES, std, strict=True)
-        },
+        std=reported_std,
         observable=observable,
         num_triplets=len(tensors),
         num_inlier_triplets=agree,
         seconds=prepared.seconds + time.perf_counter() - clock,
         prior=tuple(map(float, data.prior)),  # type: ignore[arg-type]
         start=tuple(map(float, start)),  # type: ignore[arg-type]
-        assumptions=model.assumptions(),
+        assumptions=[
+            note.replace("the prior", _SOURCE_WORDS[held_source], 1)
+            if note.startswith("fx, fy")
+            else note
+            for note in model.assumptions()
+        ],
         estimated=estimated,
+        source=source,
+        focal_search=_search_summary(prepared.search),
+        diagnosis=diagnosis,
         unconstrained_std={
             name: finite_or_none(s) for name, s in zip(PARAMETER_NAMES, unconstrained, strict=True)
         },
@@ -599,6 +654,38 @@ def _solve_camera(
         tensors=tensors,
         stored_camera=camera,
     )
+
+
+_SOURCE_WORDS = {"prior": "the prior", "focal-search": "the focal search's estimate"}
+
+
+def parameter_sources(estimated: dict[str, bool], model, held_source: str) -> dict[str, str]:
+    """Where each reported value comes from: ``trifocal`` (estimated from the
+    constraints), ``tied`` (fy = fx, square pixels assumed), ``focal-search`` or
+    ``prior`` (held)."""
+    source = {}
+    for name in PARAMETER_NAMES:
+        if estimated[name]:
+            source[name] = "trifocal"
+        elif name == "fy" and model.focal == "tied":
+            source[name] = "tied"
+        elif name in ("fx", "fy"):
+            source[name] = held_source
+        else:
+            source[name] = "prior"
+    return source
+
+
+def _search_summary(search: FocalSearchResult | None) -> dict | None:
+    """The focal search's result for the JSON report (pixels; None if not run)."""
+    if search is None:
+        return None
+    return {
+        "focal": float(search.focal),
+        "std": float(search.relative_std * search.focal),
+        "decisive": bool(search.decisive),
+        "used": bool(search.improves_on_start),
+    }
 
 
 def _triplet_reports(

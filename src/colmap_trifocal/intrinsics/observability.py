@@ -99,31 +99,47 @@ def relative_std(information: np.ndarray, parametrization: Parametrization) -> n
     return std
 
 
-def constraint_information(model: Model, base: Model, start: np.ndarray) -> np.ndarray:
+def default_held_std() -> np.ndarray:
+    """How well held values from a prior are known (4,), relative to the focal length."""
+    return np.array(
+        [HELD_FOCAL_STD, HELD_FOCAL_STD, HELD_PRINCIPAL_POINT_STD, HELD_PRINCIPAL_POINT_STD]
+    )
+
+
+def constraint_information(
+    model: Model, base: Model, start: np.ndarray, held_std: np.ndarray | None = None
+) -> np.ndarray:
     """Information P (4, 4) about θ of the ties and holds ``model`` adds to ``base``.
 
-    A held focal length is known to ``HELD_FOCAL_STD``, a held principal point
-    coordinate to ``HELD_PRINCIPAL_POINT_STD`` (of the focal length), a tie
+    A held value is known to ``held_std`` (θ units: relative to the focal length;
+    default :func:`default_held_std`, ``HELD_FOCAL_STD`` for a focal length and
+    ``HELD_PRINCIPAL_POINT_STD`` for a principal point coordinate), a tie
     ``fy = fx`` to ``TIED_ASPECT_STD`` in the aspect ratio (``d = (fy0/fx0)(−1, 1, 0, 0)``
     is its gradient in θ).
     """
+    held_std = default_held_std() if held_std is None else np.asarray(held_std, float)
     information = np.zeros((4, 4))
     unit = np.eye(4)
     if model.focal == "held" and base.focal != "held":
         for index in (0, 1):
-            information += np.outer(unit[index], unit[index]) / HELD_FOCAL_STD**2
+            information += np.outer(unit[index], unit[index]) / held_std[index] ** 2
     elif model.focal == "tied" and base.focal == "free":
         aspect = start[1] / start[0]
         gradient = aspect * np.array([-1.0, 1.0, 0.0, 0.0])
         information += np.outer(gradient, gradient) / TIED_ASPECT_STD**2
     for index, kept, base_kept in ((2, model.cx, base.cx), (3, model.cy, base.cy)):
         if base_kept and not kept:
-            information += np.outer(unit[index], unit[index]) / HELD_PRINCIPAL_POINT_STD**2
+            information += np.outer(unit[index], unit[index]) / held_std[index] ** 2
     return information
 
 
 def effective_std(
-    information: np.ndarray, model: Model, base: Model, start: np.ndarray, held: np.ndarray
+    information: np.ndarray,
+    model: Model,
+    base: Model,
+    start: np.ndarray,
+    held: np.ndarray,
+    held_std: np.ndarray | None = None,
 ) -> np.ndarray:
     """Std (4,) of θ under ``model``, its ties and holds counted as uncertain, not exact.
 
@@ -131,7 +147,7 @@ def effective_std(
     an estimated parameter coupled to a held one inherits the held value's
     uncertainty instead of hiding it (estimating cy with fx held 5 % off, say).
     """
-    constrained = information + constraint_information(model, base, start)
+    constrained = information + constraint_information(model, base, start, held_std)
     return relative_std(constrained, base.parametrization(start, held))
 
 
@@ -163,6 +179,7 @@ def select_model(
     start: np.ndarray,
     held: np.ndarray,
     tolerances: np.ndarray,
+    held_std: np.ndarray | None = None,
 ) -> Model:
     """The largest model within ``current`` whose parameters are all within
     ``FALLBACK_FACTOR`` tolerances.
@@ -174,6 +191,7 @@ def select_model(
         start: (fx0, fy0, cx0, cy0) the tensors were normalised with, pixels.
         held: values that held parameters keep (the prior), pixels.
         tolerances: (4,) the std of θ each parameter must stay below (:func:`tolerance`).
+        held_std: (4,) how well the held values are known, θ units (None: a prior's).
 
     Returns:
         ``current`` when it qualifies; otherwise the fallback (at worst
@@ -184,7 +202,7 @@ def select_model(
     for model in candidate_models(current):
         if best is not None and model.dimension < best[0]:
             break
-        std = effective_std(information, model, base, start, held)
+        std = effective_std(information, model, base, start, held, held_std)
         worst = worst_estimated_std(std, tolerances, model, single_focal)
         if worst < FALLBACK_FACTOR and (best is None or worst < best[1]):
             best = (model.dimension, worst, model)

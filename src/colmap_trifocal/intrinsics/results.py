@@ -17,6 +17,9 @@ from .parametrization import PARAMETER_NAMES
 
 __all__ = ["PARAMETER_NAMES", "CameraCalibration", "TripletReport"]
 
+#: What :func:`.diagnosis.diagnose` says when the tracks show no known cause.
+NO_CAUSE = "no degenerate motion found"
+
 
 @dataclass
 class TripletReport:
@@ -77,6 +80,14 @@ class CameraCalibration:
     #: Per parameter: estimated from the images (False: tied or held at the prior).
     estimated: dict[str, bool] = field(default_factory=lambda: dict.fromkeys(PARAMETER_NAMES, True))
     unconstrained_std: dict[str, float | None] = field(default_factory=dict)
+    #: Per parameter, where its value comes from: ``trifocal`` (the constraints),
+    #: ``tied`` (fy = fx), ``focal-search`` or ``prior`` (held at that estimate).
+    source: dict[str, str] = field(default_factory=dict)
+    #: The focal search's result: focal length and std (pixels), whether its cost
+    #: curve was decisive and whether it replaced the prior's focal length.
+    focal_search: dict | None = None
+    #: The cause of undetermined parameters the data shows (:mod:`.diagnosis`), or None.
+    diagnosis: str | None = None
     triplets: list[TripletReport] = field(default_factory=list)
     tensors: list[TripletTensor] = field(default_factory=list, repr=False)
     #: The camera as stored in the database (model, size, distortion), for writing.
@@ -126,9 +137,14 @@ class CameraCalibration:
                     reasons.append(f"{name} (no information)")
                 else:
                     reasons.append(f"{name} (std {std:.0f} px)")
+            hint = _motion_hint(fixed)
+            if self.diagnosis and self.diagnosis != NO_CAUSE:
+                hint = f" ({self.diagnosis})"
+            elif self.diagnosis:
+                hint = f" ({NO_CAUSE} in the tracks; {hint[2:]}"
             parts.append(
                 f"{', '.join(reasons)} not determined by these images"
-                f"{_motion_hint(fixed)}; {'; '.join(self.assumptions)}"
+                f"{hint}; {'; '.join(self.assumptions)}"
             )
         if weak:
             stds = ", ".join(
@@ -136,6 +152,8 @@ class CameraCalibration:
                 for name in weak
             )
             parts.append(f"{stds} only weakly determined, kept as estimated")
+            if not fixed and self.diagnosis and self.diagnosis != NO_CAUSE:
+                parts[-1] += f" ({self.diagnosis})"
         return f"camera {self.camera_id}: " + "; ".join(parts)
 
 

@@ -49,7 +49,13 @@ from ..geometry.trifocal import (
     quartic_constraints,
     tensor_from_cameras,
 )
-from .observability import conditioned_covariance, effective_std, relative_std, select_model
+from .observability import (
+    conditioned_covariance,
+    default_held_std,
+    effective_std,
+    relative_std,
+    select_model,
+)
 from .parametrization import FULL, Model, Parametrization
 from .uncertainty import combined_information, jackknife_replicates, one_step_replicate
 
@@ -425,6 +431,12 @@ class FallbackSolution:
     relative_std: np.ndarray
     #: (4,) the std of θ below which a parameter counted as determined.
     tolerances: np.ndarray
+    #: (4,) how much each estimated θ moved when the held values were moved by their
+    #: std (:func:`held_value_sensitivity`; zero where nothing is held).
+    held_shift: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    #: (4,) whether the data pulls each estimated parameter back when the solve
+    #: starts away from the estimate (:func:`data_moves`); True for held ones.
+    moved: np.ndarray = field(default_factory=lambda: np.ones(4, dtype=bool))
 
 
 def solve_with_fallback(
@@ -435,6 +447,7 @@ def solve_with_fallback(
     held: np.ndarray,
     tolerances: np.ndarray,
     tau: float = MSAC_TAU,
+    held_std: np.ndarray | None = None,
 ) -> FallbackSolution:
     """Solve ``base``; while parameters are undetermined, re-solve without them.
 
@@ -451,19 +464,116 @@ def solve_with_fallback(
         method: ``direct``, ``msac`` or ``msac-opt``.
         base: the parameters the camera model has (all four, or one focal length).
         start: (fx0, fy0, cx0, cy0) of the normalisation, pixels.
-        held: the values held parameters keep (the prior), pixels.
+        held: the values held parameters keep (the best the run has: the prior, or
+            the focal search's focal length), pixels.
         tolerances: (4,) std of θ below which a parameter is determined
             (:func:`.observability.tolerance`).
         tau: MSAC threshold.
+        held_std: (4,) how well the held values are known, relative to the focal
+            length (None: a prior's, :func:`.observability.default_held_std`).
+
+    The returned std of the estimated parameters includes what the held values'
+    uncertainty does to them: to first order through the information
+    (:func:`.observability.effective_std`), and beyond it by re-solving with the
+    held values moved by their std (:func:`held_value_sensitivity`); the larger
+    of the two counts.
     """
     span = base.parametrization(start, held)
     model = base
     solution = unconstrained = solve(tensors, method, span, tau, span=span)
     while method != "direct":
-        reduced = select_model(solution.information, model, base, start, held, tolerances)
+        reduced = select_model(solution.information, model, base, start, held, tolerances, held_std)
         if reduced == model:
             break
         model = reduced
         solution = solve(tensors, method, model.parametrization(start, held), tau, span=span)
-    std = effective_std(solution.information, model, base, start, held)
-    return FallbackSolution(solution, model, unconstrained, std, tolerances)
+    std = effective_std(solution.information, model, base, start, held, held_std)
+    shift = np.zeros(4)
+    if method != "direct" and 0 < model.dimension < base.dimension:
+        shift = held_value_sensitivity(
+            tensors, method, model, base, start, held, held_std, solution.theta, tau
+        )
+        conditional = np.where(np.isfinite(solution.relative_std), solution.relative_std, np.inf)
+        std = np.maximum(std, np.hypot(conditional, shift))
+    moved = np.ones(4, dtype=bool)
+    if method != "direct" and model.dimension > 0:
+        moved = data_moves(tensors, method, model, start, held, solution.theta, tolerances, tau)
+    return FallbackSolution(solution, model, unconstrained, std, tolerances, shift, moved)
+
+
+#: :func:`data_moves` starts this many tolerances away from the estimate ...
+MOVE_TEST_OFFSET = 3.0
+#: ... and a parameter counts as moved by the data when the solve brings it back
+#: by at least this fraction of the offset.
+MOVE_TEST_RECOVERY = 0.5
+
+
+def data_moves(
+    tensors: list[TripletTensor],
+    method: str,
+    model: Model,
+    start: np.ndarray,
+    held: np.ndarray,
+    theta: np.ndarray,
+    tolerances: np.ndarray,
+    tau: float = MSAC_TAU,
+) -> np.ndarray:
+    """Whether the data moves each estimated parameter (4,): a parameter the data does
+    not move from its start is not determined, whatever its std says.
+
+    The model is re-solved from the estimate with every estimated parameter offset
+    by ``MOVE_TEST_OFFSET`` tolerances (alternating signs); a parameter the
+    constraints determine returns at least ``MOVE_TEST_RECOVERY`` of the way.
+    Held parameters count as moved (they are not estimated).
+    """
+    parametrization = model.parametrization(start, held)
+    free = parametrization.free(theta)
+    signs = np.array([1.0, 1.0, -1.0, 1.0])
+    offset_theta = MOVE_TEST_OFFSET * tolerances * signs
+    offset_free = parametrization.free(theta + offset_theta) - free
+    # Same unknowns, p = 0 now at the offset estimate.
+    shifted = Parametrization(parametrization.matrix, parametrization.theta(free + offset_free))
+    result = solve(tensors, method, shifted, tau).theta
+    applied = shifted.offset - theta
+    recovered = np.abs(applied) - np.abs(result - theta)
+    estimated = np.abs(parametrization.matrix).sum(axis=1) > 0
+    moved = recovered >= MOVE_TEST_RECOVERY * np.abs(applied)
+    return np.where(estimated & (np.abs(applied) > 0), moved, True)
+
+
+def held_value_sensitivity(
+    tensors: list[TripletTensor],
+    method: str,
+    model: Model,
+    base: Model,
+    start: np.ndarray,
+    held: np.ndarray,
+    held_std: np.ndarray | None,
+    theta: np.ndarray,
+    tau: float = MSAC_TAU,
+) -> np.ndarray:
+    """How far (4,) the estimated θ move when the held values move by their std.
+
+    Each held group (the focal length; cx; cy) is moved by its std in turn and
+    the model re-solved; the moves add in quadrature. This is the coupling the
+    linearised information misses when the held direction carries no
+    information at all (there the curvature has no cross term, yet the
+    estimated principal point follows a wrong focal length). Zero for held
+    parameters themselves.
+    """
+    held_std = default_held_std() if held_std is None else np.asarray(held_std, float)
+    fx0, fy0 = float(start[0]), float(start[1])
+    groups = []
+    if model.focal == "held" and base.focal != "held":
+        groups.append(np.array([held_std[0] * fx0, held_std[1] * fy0, 0.0, 0.0]))
+    for index, kept, base_kept in ((2, model.cx, base.cx), (3, model.cy, base.cy)):
+        if base_kept and not kept:
+            step = np.zeros(4)
+            step[index] = held_std[index] * (fx0 if index == 2 else fy0)
+            groups.append(step)
+    squared = np.zeros(4)
+    for step in groups:
+        moved = solve(tensors, method, model.parametrization(start, held + step), tau).theta
+        squared += (moved - theta) ** 2
+    estimated = np.array([model.focal != "held"] * 2 + [model.cx, model.cy])
+    return np.where(estimated, np.sqrt(squared), 0.0)

@@ -11,6 +11,8 @@ COLMAP (centre of the top-left pixel at (0.5, 0.5)). Lengths in metres.
 
 * :func:`forward_driving`: a car-mounted camera moving along its optical axis,
   yawing by a few degrees (planar motion: fy is not determined).
+* :func:`driving_turn`: the same car turning a corner (90° by default; still
+  planar motion, but with much more rotation than :func:`forward_driving`).
 * :func:`planar_orbit`: a level camera circling an object at constant height
   (planar motion: fy is not determined).
 * :func:`pure_translation`: no rotation at all (nothing is determined).
@@ -131,6 +133,53 @@ def forward_driving(
         [rng.uniform(-4.0, 4.0, road), np.full(road, 1.5), rng.uniform(3.0, 40.0, road)], axis=1
     )
     points = np.concatenate([facade_points, road_points])
+    return scene_from_poses(yaw_rotations(yaws), centers, points, noise_px, rng)
+
+
+def driving_turn(
+    num_images: int = 12,
+    noise_px: float = 0.5,
+    seed: int | np.random.Generator | None = 0,
+    turn_deg: float = 90.0,
+    length: float = 24.0,
+    radius: float = 8.0,
+    num_points: int = 8000,
+) -> SyntheticScene:
+    """A car driving ``length`` m that turns right by ``turn_deg`` on an arc of ``radius`` m.
+
+    The path is straight, then the arc (centred on the path), then straight again;
+    frames are equally spaced along it, the camera level and looking along the
+    path (±0.2° jitter). Points lie on building fronts 4–10 m to either side of the
+    path (up to 6 m above the camera) and on the road. All rotations are about the
+    vertical axis, so fy is still not determined (planar motion).
+    """
+    rng = _as_generator(seed)
+    turn = np.deg2rad(turn_deg)
+    arc = radius * turn
+    straight = max(0.0, (length - arc) / 2.0)
+
+    def pose_at(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions (n, 3) and headings (n,) at arc lengths ``s`` (n,)."""
+        phi = np.clip((s - straight) / radius, 0.0, turn)
+        before = np.minimum(s, straight)
+        after = np.maximum(s - straight - arc, 0.0)
+        x = radius * (1.0 - np.cos(phi)) + after * np.sin(turn)
+        z = before + radius * np.sin(phi) + after * np.cos(turn)
+        return np.stack([x, np.zeros_like(s), z], axis=1), phi
+
+    centers, headings = pose_at(np.linspace(0.0, 2 * straight + arc, num_images))
+    yaws = headings + rng.normal(0.0, np.deg2rad(0.2), num_images)
+    s = rng.uniform(-5.0, 2 * straight + arc + 30.0, num_points)
+    base, heading = pose_at(s)
+    right = np.stack([np.cos(heading), np.zeros_like(s), -np.sin(heading)], axis=1)
+    facade = rng.random(num_points) < 0.75
+    side = rng.choice([-1.0, 1.0], num_points)
+    lateral = np.where(
+        facade, side * rng.uniform(4.0, 10.0, num_points), rng.uniform(-4.0, 4.0, num_points)
+    )
+    height = np.where(facade, rng.uniform(-6.0, 1.5, num_points), 1.5)
+    points = base + lateral[:, None] * right
+    points[:, 1] = height
     return scene_from_poses(yaw_rotations(yaws), centers, points, noise_px, rng)
 
 

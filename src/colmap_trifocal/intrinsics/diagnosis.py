@@ -1,0 +1,126 @@
+"""Why the images do not determine some intrinsics: the cause the tracks show.
+
+:mod:`.observability` says *which* parameters the triplets leave undetermined;
+this module says *why*, from the triplets' tracks measured with the estimate K
+(pixels, K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]):
+
+* **too few tracks**: the median triplet has fewer than ``MIN_TRACKS`` tracks;
+* **planar structure**: a homography (OpenCV RANSAC, ``HOMOGRAPHY_PX``) explains
+  at least ``PLANAR_FRACTION`` of the tracks between the views of most triplets
+  (a facade, or too little translation to see depth);
+* **pure translation / forward motion**: the relative rotations (essential matrix,
+  OpenCV 5-point RANSAC and ``recoverPose``) are mostly (75th percentile) below
+  ``MIN_ROTATION_DEG``;
+  forward when the translation is mostly along the optical axis;
+* **rotation about one axis**: at least ``ONE_AXIS_FRACTION`` of the squared
+  rotation (rotation vectors of all pairs) is about one axis (planar motion: a
+  car turning, an orbit at constant height); the axis is named in camera
+  coordinates. Small rotations have noisy axes, so the vectors are weighted by
+  their angle rather than each axis counted alike.
+
+Rotations only need K roughly right (a few percent), which every estimate that
+reaches this stage is. Each finding is a short phrase with the measured figure.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..geometry.trifocal import intrinsics_matrix
+
+MIN_TRACKS = 80
+HOMOGRAPHY_PX = 2.0
+PLANAR_FRACTION = 0.8
+MIN_ROTATION_DEG = 1.0
+ONE_AXIS_FRACTION = 0.95
+FORWARD_COSINE = 0.9
+#: Triplets examined at most (the first selected ones).
+MAX_TRIPLETS = 8
+
+
+def relative_motion(x1: np.ndarray, x2: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Rotation (3, 3) and unit translation (3,) of view 2 from normalised points (n, 2)."""
+    E, mask = cv2.findEssentialMat(x1, x2, np.eye(3), method=cv2.RANSAC, threshold=1e-3)
+    if E is None or E.shape != (3, 3):
+        return None
+    _, R, t, _ = cv2.recoverPose(E, x1, x2, np.eye(3), mask=mask.copy())
+    return R, t.ravel() / max(np.linalg.norm(t), 1e-12)
+
+
+def homography_fraction(x1: np.ndarray, x2: np.ndarray) -> float:
+    """Fraction of the tracks (pixels, (n, 2)) one homography explains within HOMOGRAPHY_PX."""
+    if len(x1) < 8:
+        return 0.0
+    H, mask = cv2.findHomography(x1, x2, cv2.RANSAC, HOMOGRAPHY_PX)
+    return 0.0 if H is None else float(mask.mean())
+
+
+def diagnose(tracks: list[np.ndarray], intrinsics: np.ndarray) -> str:
+    """The causes of weak self-calibration the tracks show, as one phrase.
+
+    Args:
+        tracks: per triplet, undistorted pixel tracks (3, n, 2).
+        intrinsics: (fx, fy, cx, cy) of the estimate, pixels.
+
+    Returns:
+        e.g. ``"rotation about one axis (planar motion; camera y, up to 12° between views)"``; ``"no
+        degenerate motion found"`` when none of the causes applies.
+    """
+    K_inv = np.linalg.inv(intrinsics_matrix(np.asarray(intrinsics, float)))
+    counts = [x.shape[1] for x in tracks]
+    findings = []
+    if np.median(counts) < MIN_TRACKS:
+        findings.append(f"too few tracks (median {np.median(counts):.0f} per triplet)")
+    fractions, angles, vectors, forward = [], [], [], []
+    for x in tracks[:MAX_TRIPLETS]:
+        pixels = np.ascontiguousarray(x, dtype=np.float64)
+        normalised = pixels @ K_inv[:2, :2].T + K_inv[:2, 2]
+        for view in (1, 2):
+            fractions.append(homography_fraction(pixels[0], pixels[view]))
+            motion = relative_motion(normalised[0], normalised[view])
+            if motion is None:
+                continue
+            R, t = motion
+            rotation_vector = cv2.Rodrigues(R)[0].ravel()
+            angle = np.linalg.norm(rotation_vector)
+            angles.append(np.rad2deg(angle))
+            vectors.append(rotation_vector)
+            forward.append(abs(t[2]))
+    if fractions and np.median(fractions) >= PLANAR_FRACTION:
+        findings.append(
+            f"planar structure (a homography explains {100 * np.median(fractions):.0f} % "
+            "of the tracks)"
+        )
+    if angles:
+        largest = float(np.max(angles))
+        # The 75th percentile: one pair's spurious rotation (an essential matrix
+        # measured with a K a few percent off) must not hide a translating camera.
+        typical = float(np.percentile(angles, 75))
+        if typical < MIN_ROTATION_DEG:
+            if np.median(forward) >= FORWARD_COSINE:
+                findings.append(
+                    f"forward motion with little rotation (mostly below {typical:.1f}°)"
+                )
+            else:
+                findings.append(f"pure translation (rotation mostly below {typical:.1f}°)")
+        elif _one_axis(np.array(vectors)):
+            mean = _principal_axis(np.array(vectors))
+            name = "xyz"[int(np.argmax(np.abs(mean)))]
+            findings.append(
+                f"rotation about one axis (planar motion; camera {name}, up to {largest:.0f}° "
+                "between views)"
+            )
+    return "; ".join(findings) if findings else "no degenerate motion found"
+
+
+def _principal_axis(vectors: np.ndarray) -> np.ndarray:
+    """Principal direction (3,) of rotation vectors (m, 3) (sign-free)."""
+    return np.linalg.eigh(vectors.T @ vectors)[1][:, -1]
+
+
+def _one_axis(vectors: np.ndarray) -> bool:
+    """Whether ONE_AXIS_FRACTION of the squared rotation (m, 3) is about one axis."""
+    scatter = vectors.T @ vectors
+    total = float(np.trace(scatter))
+    return total > 0 and float(np.linalg.eigvalsh(scatter)[-1]) >= ONE_AXIS_FRACTION * total
