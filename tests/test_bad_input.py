@@ -984,8 +984,9 @@ def test_signal_at_any_time_during_write(
         # that way, after main() returned 130, when the KeyboardInterrupt was raised
         # inside an exec()/eval() of a string (dataclass and namedtuple definitions of the
         # modules still being imported): it remembers it as "unhandled" and re-raises
-        # SIGINT at exit.
-        assert process.returncode in (status, -signum), (delay, stderr)
+        # SIGINT at exit (also after a SIGTERM or SIGHUP, which main() turns into the same
+        # interrupt; seen at 0.4 s on a loaded machine).
+        assert process.returncode in (status, -signum, -signal.SIGINT), (delay, stderr)
         lines = stderr.splitlines()
         assert len(lines) == 1 and lines[0].startswith(line), (delay, stderr)
     assert states[0] == "untouched" and states[-1] == "written", states
@@ -1098,7 +1099,7 @@ def test_numerical_warnings_go_to_the_log_not_stderr(
             np.float64(1e300) * np.float64(1e300)
 
     monkeypatch.setattr(
-        calibrate_module, "read_database", _after(calibrate_module.read_database, overflow)
+        calibrate_module, "calibrate_groups", _after(calibrate_module.calibrate_groups, overflow)
     )
     with caplog.at_level("INFO", logger="colmap_trifocal"):
         status, lines = _main(capsys, "calibrate", database_copy, *QUICK_READ)

@@ -31,6 +31,7 @@ def _synthesize(path: Path, **options: object) -> pycolmap.Reconstruction:
         "num_points3D": 300,
     }
     settings.update(options)
+    pycolmap.set_random_seed(0)  # the scene must not depend on the tests run before
     with pycolmap.Database.open(str(path)) as db:
         return pycolmap.synthesize_dataset(pycolmap.SyntheticDatasetOptions(**settings), db)
 
