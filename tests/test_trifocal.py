@@ -213,3 +213,26 @@ def test_intrinsics_matrix() -> None:
     expected = np.array([[2759.48, 0.0, 1520.69], [0.0, 2764.16, 1006.81], [0.0, 0.0, 1.0]])
     np.testing.assert_array_equal(K, expected)
     assert intrinsics_matrix(np.tile(TRUE_INTRINSICS, (2, 5, 1))).shape == (2, 5, 3, 3)
+
+
+def _constraint_magnitudes(T: np.ndarray, params: np.ndarray) -> np.ndarray:
+    """|constraints| of ``T`` calibrated by (fx, fy, cx, cy)."""
+    calibrated = calibrate_tensor(T, intrinsics_matrix(params))
+    return np.abs(quartic_constraints(normalize_tensor(calibrated)))
+
+
+def test_constraints_cannot_tell_the_sign_of_a_focal_length() -> None:
+    """fx → −fx or fy → −fy leaves every constraint value unchanged (any tensor, not only
+    calibrated ones), so a solve that crosses zero found the same K:
+    :func:`fold_focal_sign` returns it with positive focal lengths."""
+    from colmap_trifocal.intrinsics.selfcalibration import fold_focal_sign
+
+    T = np.random.default_rng(0).standard_normal((3, 3, 3))
+    params = np.array([700.0, 690.0, 600.0, 180.0])
+    reference = _constraint_magnitudes(T, params)
+    for signs in ([-1, 1], [1, -1], [-1, -1]):
+        mirrored = params * np.array([*signs, 1, 1])
+        np.testing.assert_allclose(_constraint_magnitudes(T, mirrored), reference, rtol=1e-9)
+        np.testing.assert_array_equal(fold_focal_sign(mirrored), params)
+    # A wrong K does change them (the test above is not vacuous).
+    assert np.max(np.abs(_constraint_magnitudes(T, params * 1.1) - reference)) > 1e-4

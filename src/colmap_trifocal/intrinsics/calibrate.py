@@ -56,6 +56,7 @@ from .selfcalibration import (
     MSAC_TAU,
     FallbackSolution,
     SelfCalibrationResult,
+    fold_focal_sign,
     solve_with_fallback,
     theta_to_intrinsics,
 )
@@ -592,7 +593,7 @@ def _solve_camera(
             prepared.triplets, prepared.tracks, start, prepared.seeds, camera, options
         )
         fallback = solve_from(start, tensors)
-    estimate = theta_to_intrinsics(fallback.solution.theta, start)
+    estimate = fold_focal_sign(theta_to_intrinsics(fallback.solution.theta, start))
     solution, model = fallback.solution, fallback.model
     # An estimate no tensor agrees with is garbage (e.g. copies of one image with
     # jitter); direct (no outlier defence) and a result held at the prior are exempt.
@@ -696,7 +697,9 @@ def _triplet_reports(
     for index, tensor in enumerate(tensors):
         candidate = score = None
         if solution.per_tensor_theta is not None and solution.per_tensor_scores is not None:
-            intrinsics = theta_to_intrinsics(solution.per_tensor_theta[index], start)
+            intrinsics = fold_focal_sign(
+                theta_to_intrinsics(solution.per_tensor_theta[index], start)
+            )
             candidate = tuple(map(float, intrinsics))
             score = float(solution.per_tensor_scores[index])
         reports.append(
@@ -754,7 +757,7 @@ def _restart_point(fallback: FallbackSolution, start: np.ndarray) -> np.ndarray:
     start's aspect ratio (planar motion leaves fy wandering tens of percent away).
     """
     unconstrained = fallback.unconstrained
-    estimate = theta_to_intrinsics(unconstrained.theta, start)
+    estimate = fold_focal_sign(theta_to_intrinsics(unconstrained.theta, start))
     trusted = unconstrained.relative_std < FALLBACK_FACTOR * fallback.tolerances
     point = np.where(trusted, estimate, start)
     if trusted[0] and not trusted[1]:

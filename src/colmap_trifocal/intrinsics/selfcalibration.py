@@ -93,6 +93,20 @@ def theta_to_intrinsics(theta: np.ndarray, prior: np.ndarray) -> np.ndarray:
     )
 
 
+def fold_focal_sign(intrinsics: np.ndarray) -> np.ndarray:
+    """(fx, fy, cx, cy) with positive focal lengths (pixels).
+
+    The 15 constraints cannot tell fx from −fx (nor fy from −fy): calibrating with
+    ``K·diag(±1, ±1, 1)`` maps a calibrated tensor to the calibrated tensor of the
+    mirrored cameras (``D R D`` is a rotation), and the constraint values are equal
+    for any tensor (checked in ``tests/test_trifocal.py``). A solve that crossed
+    zero therefore found the same K; this returns it with the physical sign.
+    """
+    folded = np.array(intrinsics, dtype=float)
+    folded[..., :2] = np.abs(folded[..., :2])
+    return folded
+
+
 def intrinsics_to_theta(intrinsics: np.ndarray, prior: np.ndarray) -> np.ndarray:
     """Inverse of :func:`theta_to_intrinsics`."""
     fx0, fy0, cx0, cy0 = prior
