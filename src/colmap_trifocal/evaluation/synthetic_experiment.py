@@ -44,10 +44,10 @@ from ..common.errors import CalibrationError
 from ..database.snapshot import DatabaseContents
 from ..intrinsics.calibrate import (
     METHODS,
-    PARAMETER_NAMES,
     CalibrationOptions,
     calibrate_contents_methods,
 )
+from ..intrinsics.results import PARAMETER_NAMES
 from ..reconstruction.mapping import camera_intrinsics, keep_colmap_quiet
 from ..synthetic.database import CAMERA_ID, scene_contents
 from ..synthetic.scenes import SyntheticScene, make_scene, perturbed_prior

@@ -453,16 +453,44 @@ class FallbackSolution:
     moved: np.ndarray = field(default_factory=lambda: np.ones(4, dtype=bool))
 
 
-def solve_with_fallback(
-    tensors: list[TripletTensor],
-    method: str,
-    base: Model,
-    start: np.ndarray,
-    held: np.ndarray,
-    tolerances: np.ndarray,
-    tau: float = MSAC_TAU,
-    held_std: np.ndarray | None = None,
-) -> FallbackSolution:
+@dataclass(frozen=True)
+class CalibrationProblem:
+    """What every solve for one camera shares: its tensors, the method, and the values
+    the parameters start from or are held at.
+
+    Attributes:
+        tensors: tensors normalised by ``start``.
+        method: ``direct``, ``msac`` or ``msac-opt``.
+        start: (fx0, fy0, cx0, cy0) of the normalisation, pixels (θ = 0 there).
+        held: the values held parameters keep (the best the run has: the prior, or
+            the focal search's focal length), pixels.
+        tolerances: (4,) std of θ below which a parameter is determined
+            (:func:`.observability.tolerance`).
+        tau: MSAC threshold on the whitened residual norm.
+        held_std: (4,) how well the held values are known, relative to the focal
+            length (None: a prior's, :func:`.observability.default_held_std`).
+    """
+
+    tensors: list[TripletTensor]
+    method: str
+    start: np.ndarray
+    held: np.ndarray
+    tolerances: np.ndarray
+    tau: float = MSAC_TAU
+    held_std: np.ndarray | None = None
+
+    def solve(
+        self, parametrization: Parametrization, span: Parametrization | None = None
+    ) -> SelfCalibrationResult:
+        """:func:`solve` of these tensors with this method for one parametrization."""
+        return solve(self.tensors, self.method, parametrization, self.tau, span=span)
+
+    def parametrization(self, model: Model, held: np.ndarray | None = None) -> Parametrization:
+        """``model``'s parametrization around ``start`` (held values: ``held`` or the own)."""
+        return model.parametrization(self.start, self.held if held is None else held)
+
+
+def solve_with_fallback(problem: CalibrationProblem, base: Model) -> FallbackSolution:
     """Solve ``base``; while parameters are undetermined, re-solve without them.
 
     Each round keeps the largest model the information at the current estimate
@@ -474,17 +502,8 @@ def solve_with_fallback(
     non-robust variant and returns its own least-squares estimate.
 
     Args:
-        tensors: tensors normalised by ``start``.
-        method: ``direct``, ``msac`` or ``msac-opt``.
+        problem: the tensors, method, start, held values and tolerances.
         base: the parameters the camera model has (all four, or one focal length).
-        start: (fx0, fy0, cx0, cy0) of the normalisation, pixels.
-        held: the values held parameters keep (the best the run has: the prior, or
-            the focal search's focal length), pixels.
-        tolerances: (4,) std of θ below which a parameter is determined
-            (:func:`.observability.tolerance`).
-        tau: MSAC threshold.
-        held_std: (4,) how well the held values are known, relative to the focal
-            length (None: a prior's, :func:`.observability.default_held_std`).
 
     The returned std of the estimated parameters includes what the held values'
     uncertainty does to them: to first order through the information
@@ -492,27 +511,28 @@ def solve_with_fallback(
     held values moved by their std (:func:`held_value_sensitivity`); the larger
     of the two counts.
     """
-    span = base.parametrization(start, held)
+    method, start, held = problem.method, problem.start, problem.held
+    span = problem.parametrization(base)
     model = base
-    solution = unconstrained = solve(tensors, method, span, tau, span=span)
+    solution = unconstrained = problem.solve(span, span=span)
     while method != "direct":
-        reduced = select_model(solution.information, model, base, start, held, tolerances, held_std)
+        reduced = select_model(
+            solution.information, model, base, start, held, problem.tolerances, problem.held_std
+        )
         if reduced == model:
             break
         model = reduced
-        solution = solve(tensors, method, model.parametrization(start, held), tau, span=span)
-    std = effective_std(solution.information, model, base, start, held, held_std)
+        solution = problem.solve(problem.parametrization(model), span=span)
+    std = effective_std(solution.information, model, base, start, held, problem.held_std)
     shift = np.zeros(4)
     if method != "direct" and 0 < model.dimension < base.dimension:
-        shift = held_value_sensitivity(
-            tensors, method, model, base, start, held, held_std, solution.theta, tau
-        )
+        shift = held_value_sensitivity(problem, model, base, solution.theta)
         conditional = np.where(np.isfinite(solution.relative_std), solution.relative_std, np.inf)
         std = np.maximum(std, np.hypot(conditional, shift))
     moved = np.ones(4, dtype=bool)
     if method != "direct" and model.dimension > 0:
-        moved = data_moves(tensors, method, model, start, held, solution.theta, tolerances, tau)
-    return FallbackSolution(solution, model, unconstrained, std, tolerances, shift, moved)
+        moved = data_moves(problem, model, solution.theta)
+    return FallbackSolution(solution, model, unconstrained, std, problem.tolerances, shift, moved)
 
 
 #: :func:`data_moves` starts this many tolerances away from the estimate ...
@@ -522,32 +542,23 @@ MOVE_TEST_OFFSET = 3.0
 MOVE_TEST_RECOVERY = 0.5
 
 
-def data_moves(
-    tensors: list[TripletTensor],
-    method: str,
-    model: Model,
-    start: np.ndarray,
-    held: np.ndarray,
-    theta: np.ndarray,
-    tolerances: np.ndarray,
-    tau: float = MSAC_TAU,
-) -> np.ndarray:
+def data_moves(problem: CalibrationProblem, model: Model, theta: np.ndarray) -> np.ndarray:
     """Whether the data moves each estimated parameter (4,): a parameter the data does
     not move from its start is not determined, whatever its std says.
 
-    The model is re-solved from the estimate with every estimated parameter offset
-    by ``MOVE_TEST_OFFSET`` tolerances (alternating signs); a parameter the
+    The model is re-solved from the estimate ``theta`` with every estimated parameter
+    offset by ``MOVE_TEST_OFFSET`` tolerances (alternating signs); a parameter the
     constraints determine returns at least ``MOVE_TEST_RECOVERY`` of the way.
     Held parameters count as moved (they are not estimated).
     """
-    parametrization = model.parametrization(start, held)
+    parametrization = problem.parametrization(model)
     free = parametrization.free(theta)
     signs = np.array([1.0, 1.0, -1.0, 1.0])
-    offset_theta = MOVE_TEST_OFFSET * tolerances * signs
+    offset_theta = MOVE_TEST_OFFSET * problem.tolerances * signs
     offset_free = parametrization.free(theta + offset_theta) - free
     # Same unknowns, p = 0 now at the offset estimate.
     shifted = Parametrization(parametrization.matrix, parametrization.theta(free + offset_free))
-    result = solve(tensors, method, shifted, tau).theta
+    result = problem.solve(shifted).theta
     applied = shifted.offset - theta
     recovered = np.abs(applied) - np.abs(result - theta)
     estimated = np.abs(parametrization.matrix).sum(axis=1) > 0
@@ -556,17 +567,9 @@ def data_moves(
 
 
 def held_value_sensitivity(
-    tensors: list[TripletTensor],
-    method: str,
-    model: Model,
-    base: Model,
-    start: np.ndarray,
-    held: np.ndarray,
-    held_std: np.ndarray | None,
-    theta: np.ndarray,
-    tau: float = MSAC_TAU,
+    problem: CalibrationProblem, model: Model, base: Model, theta: np.ndarray
 ) -> np.ndarray:
-    """How far (4,) the estimated θ move when the held values move by their std.
+    """How far (4,) the estimated θ (``theta``) move when the held values move by their std.
 
     Each held group (the focal length; cx; cy) is moved by its std in turn and
     the model re-solved; the moves add in quadrature. This is the coupling the
@@ -575,8 +578,8 @@ def held_value_sensitivity(
     estimated principal point follows a wrong focal length). Zero for held
     parameters themselves.
     """
-    held_std = default_held_std() if held_std is None else np.asarray(held_std, float)
-    fx0, fy0 = float(start[0]), float(start[1])
+    held_std = default_held_std() if problem.held_std is None else np.asarray(problem.held_std)
+    fx0, fy0 = float(problem.start[0]), float(problem.start[1])
     groups = []
     if model.focal == "held" and base.focal != "held":
         groups.append(np.array([held_std[0] * fx0, held_std[1] * fy0, 0.0, 0.0]))
@@ -587,7 +590,7 @@ def held_value_sensitivity(
             groups.append(step)
     squared = np.zeros(4)
     for step in groups:
-        moved = solve(tensors, method, model.parametrization(start, held + step), tau).theta
+        moved = problem.solve(problem.parametrization(model, problem.held + step)).theta
         squared += (moved - theta) ** 2
     estimated = np.array([model.focal != "held"] * 2 + [model.cx, model.cy])
     return np.where(estimated, np.sqrt(squared), 0.0)

@@ -40,11 +40,11 @@ from ..database.features import build_database
 from ..database.shared_cameras import merge_group_cameras
 from ..database.snapshot import copy_database, read_database, write_intrinsics
 from ..intrinsics.calibrate import (
-    PARAMETER_NAMES,
     CalibrationOptions,
     calibrate_contents,
     updated_cameras,
 )
+from ..intrinsics.results import PARAMETER_NAMES
 from .mapping import (
     MAPPERS,
     REFINE_CHOICES,

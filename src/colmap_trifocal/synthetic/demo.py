@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
-from ..intrinsics.calibrate import PARAMETER_NAMES
+from ..intrinsics.results import PARAMETER_NAMES
 from ..reconstruction.workflow import RunOptions, run_pipeline
 from .database import corrupt_verified_matches
 

@@ -1,0 +1,187 @@
+"""Settings of a calibration and the checks of its inputs (prior, stored camera).
+
+:class:`CalibrationOptions` mirrors the ``calibrate`` flags; priors are (fx, fy, cx, cy)
+in pixels, COLMAP's pixel convention (centre of the top-left pixel at (0.5, 0.5)).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..common.errors import CalibrationError
+from ..database.camera_groups import GROUPINGS
+from ..database.cameras import (
+    PINHOLE_MODELS,
+    CameraInfo,
+)
+from ..geometry.tensor_estimation import (
+    TensorEstimationOptions,
+)
+from .selfcalibration import (
+    MSAC_TAU,
+)
+
+METHODS = ("msac-opt", "msac", "direct", "fundamental")
+
+
+#: See ``CalibrationOptions.restart``. Tensors normalised by a start whose principal
+#: point is 10 % of f off (a 28 % prior on fountain-P11's cy) were half outliers
+#: (10 of 20 MSAC inliers), which left cy undetermined; the unconstrained estimate
+#: was still within 0.5 %, and re-estimating from it restored 19–20 inliers.
+RESTART_THRESHOLD = 0.05
+
+
+@dataclass
+class CalibrationOptions:
+    """Settings of :func:`calibrate_database` (the CLI flags of ``calibrate``)."""
+
+    method: str = "msac-opt"
+    #: Starting point (fx, fy, cx, cy) in pixels for every camera; None: the stored camera.
+    prior: tuple[float, float, float, float] | None = None
+    #: Ignore the stored camera and start from COLMAP's guess for the image size
+    #: (f = 1.2 · max(width, height), centred principal point); the focal search
+    #: does the rest.
+    no_prior: bool = False
+    #: Cameras to calibrate (each selects its whole group); None: every group.
+    camera_ids: list[int] | None = None
+    #: How camera ids are grouped into physical cameras: ``auto`` (same model, size
+    #: and stored parameters), ``camera`` (one per camera id) or ``all`` (one camera).
+    group: str = "auto"
+    seed: int = 0
+    #: Triplets used per camera, spread over the view graph (:mod:`.tracks`); None:
+    #: every triplet with enough tracks. Measured on the Strecha scenes (±5 % priors,
+    #: 10 seeds): 20 triplets are as accurate as 30 (fountain 0.152 vs 0.153 %,
+    #: Herz-Jesus 0.122 vs 0.150 %) and 30 % faster; see also
+    #: ``benchmarks/triplet_sampling.py``.
+    max_triplets: int | None = 20
+    min_tracks: int = 40
+    #: Choose triplets for a sequence (video, driving): over wider frame gaps and
+    #: across turns, by :func:`.tracks.information_score` rather than track count.
+    #: None: when the view graph is one (:func:`.tracks.is_sequence`).
+    sequence: bool | None = None
+    tau: float = MSAC_TAU
+    tensor: TensorEstimationOptions = field(default_factory=TensorEstimationOptions)
+    write: bool = False
+    progress: bool = False
+    #: Processes estimating triplet tensors (None: one per core, at most 8).
+    #: Every triplet has its own seed, so the result does not depend on this.
+    workers: int | None = None
+    #: Replace the prior's focal length by a search over calibrated three-view
+    #: hypotheses (:mod:`.focal_search`) before estimating the tensors.
+    focal_search: bool = True
+    #: Triplets the focal search uses (the first selected ones: the one with most
+    #: tracks, then the best-matched of the rest spread over the images).
+    search_triplets: int = 6
+    #: Re-estimate the tensors once from the estimate when it lies more than
+    #: ``RESTART_THRESHOLD`` (relative to the focal length) from the start, using
+    #: the unconstrained estimate of the parameters it roughly determines
+    #: (:func:`_restart_point`; msac and msac-opt: ``direct`` has no outlier
+    #: defence, so its far-off estimates come from bad tensors, not from the start).
+    restart: bool = True
+
+
+#: Starting focal lengths, as multiples of the image's larger side (see check_prior).
+PRIOR_FOCAL_RANGE = (0.01, 100.0)
+
+
+#: Largest distance of a starting principal point from the image centre, in image sizes.
+PRIOR_PRINCIPAL_POINT_RANGE = 1.5
+
+
+def parse_prior(text: str) -> tuple[float, float, float, float]:
+    """Parse ``FX,FY,CX,CY`` (pixels); CalibrationError on anything else."""
+    parts = [p.strip() for p in text.split(",")]
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        raise CalibrationError(
+            f"malformed --prior {text!r}: expected four numbers FX,FY,CX,CY"
+        ) from None
+    if len(values) != 4:
+        raise CalibrationError(
+            f"malformed --prior {text!r}: expected 4 values FX,FY,CX,CY, got {len(values)}"
+        )
+    if not all(np.isfinite(values)) or values[0] <= 0 or values[1] <= 0:
+        raise CalibrationError(
+            f"invalid --prior {text!r}: values must be finite and focal lengths positive"
+        )
+    return values  # type: ignore[return-value]
+
+
+def check_camera_values(camera: CameraInfo, uses_stored: bool) -> None:
+    """Refuse a camera whose stored values the calibration cannot start from.
+
+    The image size must be positive. The stored params must be finite with positive
+    focal lengths when they are used: as the prior (``uses_stored``) or to undistort the
+    keypoints (any model with distortion parameters).
+    """
+    if camera.width < 1 or camera.height < 1:
+        raise CalibrationError(
+            f"camera {camera.camera_id} has an image size of {camera.width}x{camera.height} "
+            "pixels (corrupt database?)"
+        )
+    if not uses_stored and camera.model in PINHOLE_MODELS:
+        return
+    fx, fy, _, _ = camera.intrinsics
+    if not np.all(np.isfinite(camera.params)) or not (fx > 0 and fy > 0):
+        values = ", ".join(f"{v:.6g}" for v in camera.params)
+        raise CalibrationError(
+            f"camera {camera.camera_id}: the stored params ({values}) are not usable "
+            "(not finite, or a focal length <= 0)"
+            + ("; give --prior or --no-prior" if camera.model in PINHOLE_MODELS else "")
+        )
+
+
+def check_prior(prior: np.ndarray, camera: CameraInfo, source: str) -> None:
+    """Refuse starting intrinsics (fx, fy, cx, cy; pixels) that no camera of this size has.
+
+    Focal lengths must lie within ``PRIOR_FOCAL_RANGE`` times the image's larger side
+    (0.01: a field of view far beyond 180°; 100: below 0.6°) and the principal point
+    within ``PRIOR_PRINCIPAL_POINT_RANGE`` image sizes of the image centre. Outside,
+    the arithmetic overflows or loses all precision long before a tensor is estimated.
+    """
+    side = float(max(camera.width, camera.height))
+    low, high = PRIOR_FOCAL_RANGE[0] * side, PRIOR_FOCAL_RANGE[1] * side
+    fx, fy, cx, cy = (float(v) for v in prior)
+    size = np.array([camera.width, camera.height], float)
+    offset = np.abs(np.array([cx, cy]) - size / 2) / size
+    if not (
+        np.all(np.isfinite(prior))
+        and low <= fx <= high
+        and low <= fy <= high
+        and np.all(offset <= PRIOR_PRINCIPAL_POINT_RANGE)
+    ):
+        raise CalibrationError(
+            f"camera {camera.camera_id}: invalid starting intrinsics from {source}: "
+            f"fx = {fx:.6g}, fy = {fy:.6g}, cx = {cx:.6g}, cy = {cy:.6g} px; for a "
+            f"{camera.width}x{camera.height} image the focal lengths must lie in "
+            f"[{low:.6g}, {high:.6g}] px and the principal point within "
+            f"{PRIOR_PRINCIPAL_POINT_RANGE:g} image sizes of the centre"
+        )
+
+
+def default_guess(width: int, height: int) -> np.ndarray:
+    """COLMAP's starting intrinsics for an image size: f = 1.2 · max(w, h), centred (pixels)."""
+    focal = 1.2 * max(width, height)
+    return np.array([focal, focal, width / 2.0, height / 2.0])
+
+
+def check_options(options: CalibrationOptions) -> None:
+    """CalibrationError for options that exclude each other or unknown choices."""
+    if options.no_prior and options.prior is not None:
+        raise CalibrationError("--prior and --no-prior exclude each other")
+    if options.method not in METHODS:
+        raise CalibrationError(f"unknown method {options.method!r} (choose from {METHODS})")
+    if options.group not in GROUPINGS:
+        raise CalibrationError(f"unknown --group {options.group!r} (choose from {GROUPINGS})")
+
+
+def start_source(camera: CameraInfo, options: CalibrationOptions) -> str:
+    """Where the starting intrinsics of ``camera`` come from (``START_SOURCES``)."""
+    if options.prior is not None:
+        return "--prior"
+    if options.no_prior:
+        return "default guess"
+    return "EXIF focal length" if camera.has_prior_focal_length else "stored camera"
