@@ -19,7 +19,7 @@ import pycolmap
 from ..common.errors import CalibrationError
 from ..common.log import logger
 from ..database.cameras import CameraInfo
-from .mapping import REFINE_CHOICES, keep_colmap_quiet
+from .mapping import REFINE_CHOICES, refine_intrinsics
 
 
 @dataclass
@@ -122,18 +122,6 @@ def set_intrinsics(
     return written
 
 
-def bundle_adjust(reconstruction: pycolmap.Reconstruction, distortion: bool = False) -> None:
-    """pycolmap global bundle adjustment of poses, points, focal lengths and principal
-    points (and the distortion parameters with ``distortion``), in place."""
-    options = pycolmap.BundleAdjustmentOptions()
-    options.refine_focal_length = True
-    options.refine_principal_point = True
-    options.refine_extra_params = distortion
-    options.print_summary = False
-    with keep_colmap_quiet():
-        pycolmap.bundle_adjustment(reconstruction, options)
-
-
 def calibrate_model(
     model: Path,
     output: Path,
@@ -147,7 +135,7 @@ def calibrate_model(
         model: existing COLMAP model folder (left unchanged).
         output: new or empty folder for the result.
         cameras: camera_id -> camera with the estimated intrinsics.
-        refine: ``none`` or ``ba`` (see :func:`bundle_adjust`).
+        refine: ``none`` or ``ba`` (see :func:`.mapping.refine_intrinsics`).
         refine_distortion: also refine the distortion parameters (with ``ba``).
     """
     if refine not in REFINE_CHOICES:
@@ -161,7 +149,7 @@ def calibrate_model(
     with_estimate = reprojection_error(reconstruction)
     refined = None
     if refine == "ba":
-        bundle_adjust(reconstruction, refine_distortion)
+        refine_intrinsics(reconstruction, refine_distortion)
         refined = reprojection_error(reconstruction)
     Path(output).mkdir(parents=True, exist_ok=True)
     reconstruction.write(output)

@@ -120,11 +120,19 @@ def incremental_mapping(
         )
     finally:
         bar.close()
+    return _largest_model(models, "incremental mapping")
+
+
+def _largest_model(
+    models: dict[int, pycolmap.Reconstruction], mapper: str
+) -> pycolmap.Reconstruction:
+    """The model with most registered images; CalibrationError when there is none."""
     if not models:
-        raise CalibrationError("incremental mapping registered no images (no model)")
+        raise CalibrationError(f"{mapper} registered no images (no model)")
     largest = max(models.values(), key=lambda r: r.num_reg_images())
     logger.info(
-        "mapping: %d model(s), largest with %d registered images",
+        "%s: %d model(s), largest with %d registered images",
+        mapper,
         len(models),
         largest.num_reg_images(),
     )
@@ -165,15 +173,7 @@ def global_mapping(
         models = pycolmap.global_mapping(
             database, image_dir if image_dir is not None else output_dir, output_dir, options
         )
-    if not models:
-        raise CalibrationError("global mapping registered no images (no model)")
-    largest = max(models.values(), key=lambda r: r.num_reg_images())
-    logger.info(
-        "global mapping: %d model(s), largest with %d registered images",
-        len(models),
-        largest.num_reg_images(),
-    )
-    return largest
+    return _largest_model(models, "global mapping")
 
 
 def incremental_mapping_with_retries(
@@ -261,12 +261,13 @@ def mapping_options(
     return options
 
 
-def refine_intrinsics(reconstruction: pycolmap.Reconstruction) -> None:
-    """Global bundle adjustment refining focal lengths and principal points (in place)."""
+def refine_intrinsics(reconstruction: pycolmap.Reconstruction, distortion: bool = False) -> None:
+    """Global bundle adjustment of poses, points, focal lengths and principal points (and
+    the distortion parameters with ``distortion``), in place."""
     options = pycolmap.BundleAdjustmentOptions()
     options.refine_focal_length = True
     options.refine_principal_point = True
-    options.refine_extra_params = False
+    options.refine_extra_params = distortion
     options.print_summary = False
     with keep_colmap_quiet():
         pycolmap.bundle_adjustment(reconstruction, options)
