@@ -5,6 +5,9 @@ this module says *why*, from the triplets' tracks measured with the estimate K
 (pixels, K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]):
 
 * **too few tracks**: the median triplet has fewer than ``MIN_TRACKS`` tracks;
+* **too similar images**: the keypoints of most view pairs move less than
+  ``MIN_DISPLACEMENT_PX`` (median over the tracks): copies of one image, or a camera
+  that did not move; no motion can be measured then, so nothing else is said;
 * **planar structure**: a homography (OpenCV RANSAC, ``HOMOGRAPHY_PX``) explains
   at least ``PLANAR_FRACTION`` of the tracks between the views of most triplets
   (a facade, or too little translation to see depth);
@@ -30,6 +33,8 @@ import numpy as np
 from ..geometry.trifocal import intrinsics_matrix
 
 MIN_TRACKS = 80
+#: Median keypoint displacement (pixels) below which two views show no motion at all.
+MIN_DISPLACEMENT_PX = 3.0
 HOMOGRAPHY_PX = 2.0
 PLANAR_FRACTION = 0.8
 MIN_ROTATION_DEG = 1.0
@@ -72,6 +77,18 @@ def diagnose(tracks: list[np.ndarray], intrinsics: np.ndarray) -> str:
     findings = []
     if np.median(counts) < MIN_TRACKS:
         findings.append(f"too few tracks (median {np.median(counts):.0f} per triplet)")
+    examined = [np.asarray(x, dtype=np.float64) for x in tracks[:MAX_TRIPLETS]]
+    displacements = [
+        float(np.median(np.linalg.norm(x[view] - x[0], axis=-1)))
+        for x in examined
+        for view in (1, 2)
+    ]
+    if displacements and np.percentile(displacements, 75) < MIN_DISPLACEMENT_PX:
+        findings.append(
+            "too similar images (keypoints move "
+            f"{np.percentile(displacements, 75):.1f} px between views: copies of one image?)"
+        )
+        return "; ".join(findings)
     fractions, angles, vectors, forward = [], [], [], []
     for x in tracks[:MAX_TRIPLETS]:
         pixels = np.ascontiguousarray(x, dtype=np.float64)
