@@ -162,6 +162,18 @@ def _backup_into(source: sqlite3.Connection, target: Path) -> None:
         out.close()
 
 
+def _backup_read_only(path: Path, target: Path, query: str = "mode=ro") -> None:
+    """Copy the database at ``path`` into ``target`` through a read-only connection
+    (``query``: its URI parameters), committed changes still in its ``-wal`` included."""
+    source = sqlite3.connect(
+        f"{path.resolve().as_uri()}?{query}", uri=True, timeout=_LOCK_TIMEOUT_S
+    )
+    try:
+        _backup_into(source, target)
+    finally:
+        source.close()
+
+
 def _copy_for_reading(path: Path, dst: Path, immutable: bool) -> int:
     """Check ``path`` for COLMAP tables and copy what the calibration reads into ``dst``.
 
@@ -239,13 +251,7 @@ def copy_database(path: Path, target: Path) -> None:
     immutable = wal_mode and not _sidecar(path, "-wal").exists()
     query = "mode=ro&immutable=1" if immutable else "mode=ro"
     try:
-        source = sqlite3.connect(
-            f"{path.resolve().as_uri()}?{query}", uri=True, timeout=_LOCK_TIMEOUT_S
-        )
-        try:
-            _backup_into(source, target)
-        finally:
-            source.close()
+        _backup_read_only(path, target, query)
     except sqlite3.Error as exc:
         raise _sqlite_error(exc, path, "copy") from exc
 
@@ -634,13 +640,7 @@ def _copy_database(path: Path, target: Path) -> None:
     """
     wal = _sidecar(path, "-wal")
     if wal.exists() and wal.stat().st_size > 0:
-        source = sqlite3.connect(
-            f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=_LOCK_TIMEOUT_S
-        )
-        try:
-            _backup_into(source, target)
-        finally:
-            source.close()
+        _backup_read_only(path, target)
     else:
         shutil.copyfile(path, target)
         shutil.copystat(path, target)
