@@ -25,11 +25,14 @@ def default_workers() -> int:
 
 
 def _quiet_worker() -> None:
-    """Ctrl-C and a hangup are the parent's to handle; terminate() (SIGTERM) ends a worker
-    without glog's stack dump."""
+    """Ctrl-C, a hangup and SIGTERM are the parent's to handle (they reach a terminal job's
+    whole process group). A worker must not die of them: an idle worker holds the task
+    queue's lock while it waits, and a worker that dies holding it deadlocks the pool
+    (measured: a SIGTERM to the group during the tensors hung ``Pool.terminate()`` in a
+    semaphore acquire). The parent ends the pool with close() + join() instead."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
 def map_jobs(
@@ -63,15 +66,12 @@ def map_jobs(
         for result in pool.imap(function, jobs, chunksize=1):
             results.append(result)
             bar.update()
-        # close + join lets workers exit normally: terminate() sends SIGTERM, which
-        # pycolmap's (glog) failure handler reports with a stack trace.
-        pool.close()
-    except BaseException:
-        if pool is not None:
-            pool.terminate()
-        raise
     finally:
+        # close + join lets the workers finish the jobs already queued and exit
+        # normally, also after an interrupt (which costs that wait): terminate() would
+        # send them SIGTERM, which they ignore (see _quiet_worker).
         if pool is not None:
+            pool.close()
             pool.join()
         bar.close()
     return results
