@@ -1,4 +1,4 @@
-"""Hard synthetic scenes: straight and turning drives, narrow and wide lenses (issue 13).
+"""Hard synthetic scenes: drives, narrow and wide lenses, small handheld sets (issue 13).
 
 For each class and start (a prior with every parameter 5 % off, random signs; or
 COLMAP's default camera, f = 1.2 · max(w, h), centred), N seeded scenes,
@@ -12,7 +12,7 @@ msac-opt, one worker. Prints per class and start:
   the default camera, runs whose focal length ended further from the truth than
   the focal search's own estimate (must be 0).
 
-    python benchmarks/hard_scenes.py [--seeds 3] [--classes straight,yaw3,turn,narrow,wide]
+    python benchmarks/hard_scenes.py [--seeds 3] [--classes straight,yaw3,turn,narrow,wide,handheld]
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from colmap_trifocal.intrinsics.calibrate import default_guess
 from colmap_trifocal.intrinsics.results import PARAMETER_NAMES
 from colmap_trifocal.synthetic.database import scene_contents
 from colmap_trifocal.synthetic.lenses import narrow_lens, wide_lens
-from colmap_trifocal.synthetic.motions import driving_turn, forward_driving
+from colmap_trifocal.synthetic.motions import driving_turn, forward_driving, handheld_indoor
 
 CLASSES = {
     "straight": ("straight drive (no yaw)", lambda seed: forward_driving(seed=seed, yaw_deg=0.0)),
@@ -35,6 +35,7 @@ CLASSES = {
     "turn": ("drive with a 90° turn", lambda seed: driving_turn(seed=seed)),
     "narrow": ("10° lens, ring", lambda seed: narrow_lens(seed=seed)),
     "wide": ("100° lens, ring", lambda seed: wide_lens(seed=seed)),
+    "handheld": ("handheld VGA, 17 frames, 0.5 m", lambda seed: handheld_indoor(seed=seed)),
 }
 
 

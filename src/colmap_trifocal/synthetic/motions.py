@@ -16,6 +16,8 @@ COLMAP (centre of the top-left pixel at (0.5, 0.5)). Lengths in metres.
 * :func:`planar_orbit`: a level camera circling an object at constant height
   (planar motion: fy is not determined).
 * :func:`pure_translation`: no rotation at all (nothing is determined).
+* :func:`handheld_indoor`: a small handheld VGA set in a room (short baseline,
+  a few hundred noisy tracks: everything is determined, but only weakly).
 * :func:`general_motion`: cameras in general position around a cube of points
   (:func:`.synthetic.make_scene`; everything is determined).
 """
@@ -32,6 +34,7 @@ from .scenes import (
     SyntheticScene,
     _as_generator,
     _project,
+    look_at_rotations,
     make_scene,
 )
 
@@ -213,6 +216,54 @@ def pure_translation(
     centers = rng.uniform(-1.0, 1.0, size=(num_images, 3))
     points = rng.uniform([-3.0, -2.0, 6.0], [3.0, 2.0, 12.0], size=(num_points, 3))
     return scene_from_poses(rotations, centers, points, noise_px, rng)
+
+
+#: A VGA phone-like camera (63° horizontal field of view), principal point off centre.
+HANDHELD_INTRINSICS = np.array([525.0, 525.0, 316.4, 243.1])
+
+
+def handheld_indoor(
+    num_images: int = 17,
+    noise_px: float = 1.0,
+    seed: int | np.random.Generator | None = 0,
+    walk: float = 0.5,
+    num_points: int = 300,
+) -> SyntheticScene:
+    """A handheld 640x480 camera walked ``walk`` m across a room, looking at one corner.
+
+    The camera stays 1.4–1.6 m high, moves along a slight arc and aims at points
+    of the far corner (two walls 3–4.5 m away and furniture in front of them), with
+    ±4° pitch and ±3° roll of an unsteady hand. Few, noisy tracks (uniform
+    ±``noise_px``) and a short baseline: the small handheld sets of issue 13.
+    """
+    rng = _as_generator(seed)
+    along = np.linspace(-walk / 2, walk / 2, num_images)
+    centers = np.stack([along, rng.uniform(-0.1, 0.1, num_images), 0.15 * along**2], axis=1)
+    walls = num_points * 2 // 3
+    left = rng.random(walls) < 0.5
+    depth = rng.uniform(0.0, 1.5, walls)
+    wall_points = np.where(
+        left[:, None],
+        np.stack([np.full(walls, -1.8), rng.uniform(-1.2, 1.3, walls), 3.0 + depth], axis=1),
+        np.stack([-1.8 + 2.4 * depth, rng.uniform(-1.2, 1.3, walls), np.full(walls, 4.5)], axis=1),
+    )
+    furniture = rng.uniform([-1.5, 0.0, 2.2], [0.8, 1.3, 4.2], size=(num_points - walls, 3))
+    points = np.concatenate([wall_points, furniture])
+    aim = np.array([-0.4, 0.0, 3.8]) + rng.normal(0.0, 0.3, (num_images, 3))
+    pitch = rng.uniform(-np.deg2rad(4.0), np.deg2rad(4.0), num_images)
+    directions = aim - centers
+    directions[:, 1] += np.tan(pitch) * np.linalg.norm(directions, axis=1)
+    rolls = rng.uniform(-np.deg2rad(3.0), np.deg2rad(3.0), num_images)
+    return scene_from_poses(
+        look_at_rotations(directions, rolls),
+        centers,
+        points,
+        noise_px,
+        rng,
+        intrinsics=HANDHELD_INTRINSICS,
+        width=640,
+        height=480,
+    )
 
 
 def general_motion(
