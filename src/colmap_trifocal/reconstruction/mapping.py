@@ -34,9 +34,12 @@ Known focal length: COLMAP re-estimates the focal length while registering image
 of a camera whose ``prior_focal_length`` flag is unset (the default of feature
 extraction), and on forward motion, where the focal length barely shows in the
 images, that estimate wanders (a 12-frame synthetic drive started at the true
-718.9 px ended at 2019 px with 0.42 px reprojection error). ``run`` sets the flag
-for cameras whose focal length the calibration estimated (:func:`mark_focal_known`);
-bundle adjustment still refines it when it is not determined.
+718.9 px ended at 2019 px with 0.42 px reprojection error). For the seeded
+attempts ``run`` sets the flag of cameras whose focal length the calibration
+estimated (:func:`focal_marked_known`); bundle adjustment still refines it when it
+is not determined. The first attempt keeps COLMAP's behaviour: on the KITTI drive
+its per-image estimate pulled a weakly determined fy (−5.4 %) back to −0.7 %,
+where the flag left it at −2.3 %.
 """
 
 from __future__ import annotations
@@ -245,6 +248,7 @@ def incremental_mapping_with_retries(
     progress: bool = False,
     angles: tuple[float, ...] = INIT_TRI_ANGLES,
     candidate_pairs: list[tuple[int, int]] | None = None,
+    known_focal_cameras: list[int] | None = None,
 ) -> tuple[pycolmap.Reconstruction, list[MappingAttempt], InitialPair | None]:
     """Incremental mapping, retried with relaxed initialisation on hard motion.
 
@@ -264,6 +268,9 @@ def incremental_mapping_with_retries(
         angles: ``mapper.init_min_tri_angle`` of the attempts, degrees.
         candidate_pairs: image-id pairs to seed the retries from (e.g. the pairs of
             the calibration's best triplets); None or empty: no seeded attempts.
+        known_focal_cameras: cameras whose focal length the seeded attempts treat as
+            known (:func:`focal_marked_known`; the database must be a copy this
+            tool owns); the first and the unseeded attempts leave the flags alone.
 
     Returns:
         The largest model, every attempt made, and the seeded pair (None when no
@@ -321,10 +328,11 @@ def incremental_mapping_with_retries(
                 chosen.forward_motion,
                 chosen.num_inliers,
             )
-            for angle in angles[1:]:
-                if attempt(angle, chosen.image_ids, SEEDED_MAX_FORWARD_MOTION) >= enough:
-                    done = True
-                    break
+            with focal_marked_known(database, known_focal_cameras or []):
+                for angle in angles[1:]:
+                    if attempt(angle, chosen.image_ids, SEEDED_MAX_FORWARD_MOTION) >= enough:
+                        done = True
+                        break
     if not done:
         for angle in angles[1:]:
             if attempt(angle, None, DEFAULT_MAX_FORWARD_MOTION) >= enough:
@@ -422,17 +430,29 @@ def describe_attempts(
     return line + ")"
 
 
-def mark_focal_known(database: Path, camera_ids: list[int]) -> None:
-    """Set COLMAP's ``prior_focal_length`` flag of ``camera_ids`` (a workspace copy only).
+@contextmanager
+def focal_marked_known(database: Path, camera_ids: list[int]) -> Iterator[None]:
+    """Set COLMAP's ``prior_focal_length`` flag of ``camera_ids`` for the duration, then
+    restore the stored flags (the database must be this tool's own copy).
 
     The mapper then keeps these focal lengths through image registration instead of
-    re-estimating them per image (bundle adjustment refines them when asked to).
+    re-estimating them per image (bundle adjustment still refines them when asked to).
     """
     with pycolmap.Database.open(str(database)) as db:
+        saved = {}
         for camera_id in camera_ids:
             if db.exists_camera(camera_id):
                 camera = db.read_camera(camera_id)
+                saved[camera_id] = camera.has_prior_focal_length
                 camera.has_prior_focal_length = True
+                db.update_camera(camera)
+    try:
+        yield
+    finally:
+        with pycolmap.Database.open(str(database)) as db:
+            for camera_id, flag in saved.items():
+                camera = db.read_camera(camera_id)
+                camera.has_prior_focal_length = flag
                 db.update_camera(camera)
 
 

@@ -13,8 +13,9 @@ Stages, each timed in ``report.json``:
    mapping is retried with relaxed initialisation when it finds no initial pair
    or registers few images, seeded with the widest pair of the calibration's best
    triplets and COLMAP's forward-motion limit lifted (report.json ``mapping`` and
-   one stderr line say what was done, including the seeded pair); the largest model written to ``WORKSPACE/sparse/0`` (or an existing
-   model given with ``model``: the estimate is written into it instead);
+   one stderr line say what was done, including the seeded pair); the largest
+   model written to ``WORKSPACE/sparse/0`` (or an existing model given with
+   ``model``: the estimate is written into it instead);
 4. refine (``ba``, the default): global bundle adjustment of focal lengths and
    principal points with poses and points; ``none`` skips it.
 """
@@ -53,7 +54,6 @@ from .mapping import (
     describe_attempts,
     global_mapping,
     incremental_mapping_with_retries,
-    mark_focal_known,
     mean_reprojection_error,
     refine_intrinsics,
     registered_images_per_camera,
@@ -225,7 +225,6 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
                 )
                 attempts, seeded = [], None
             else:
-                mark_focal_known(database, focal_estimated_cameras(calibrations))
                 reconstruction, attempts, seeded = incremental_mapping_with_retries(
                     database,
                     images,
@@ -235,6 +234,7 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
                     seed=options.seed,
                     progress=options.progress,
                     candidate_pairs=seed_candidate_pairs(calibrations),
+                    known_focal_cameras=focal_estimated_cameras(calibrations),
                 )
         mapping = {
             "mapper": options.mapper,
