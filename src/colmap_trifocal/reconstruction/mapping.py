@@ -27,8 +27,10 @@ pair (COLMAP's own two-view estimate with the calibrated K: median triangulation
 angle) among the calibration's best triplets (:func:`choose_initial_pair`), given
 to COLMAP as ``init_image_id1/2``, with the forward-motion limit lifted for that
 pair only. Unseeded retries at 8° and 4° follow when the seeded ones fall short.
-Each attempt starts at its angle; COLMAP's own relaxation inside an attempt may
-still halve it twice when the attempt registers too few images.
+Each attempt starts at its angle; COLMAP's own relaxation inside an attempt
+(``init_min_num_inliers`` and ``init_min_tri_angle`` halved, twice) may still
+initialise below it: the seeded attempts at 8° of the synthetic drives in
+docs/hard_scenes.md started from pairs of 2.5–5.6°.
 
 Known focal length: COLMAP re-estimates the focal length while registering images
 of a camera whose ``prior_focal_length`` flag is unset (the default of feature
