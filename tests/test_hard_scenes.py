@@ -176,7 +176,7 @@ def test_mapping_retries_with_relaxed_initialisation(tmp_path: Path) -> None:
     """
     database = tmp_path / "demo.db"
     make_demo_database(database, seed=1, num_images=6, num_points=400)
-    model, attempts = incremental_mapping_with_retries(
+    model, attempts, _ = incremental_mapping_with_retries(
         database, None, tmp_path / "out", angles=(360.0, 4.0)
     )
     assert [a.init_min_tri_angle for a in attempts] == [360.0, 4.0]

@@ -11,9 +11,11 @@ Stages, each timed in ``report.json``:
 3. mapping: pycolmap incremental or global (GLOMAP) mapping, the determined
    intrinsics held fixed and the others refined while mapping; incremental
    mapping is retried with relaxed initialisation when it finds no initial pair
-   or registers few images (report.json ``mapping`` and one stderr line say what
-   was done); the largest model written to ``WORKSPACE/sparse/0`` (or an existing
-   model given with ``model``: the estimate is written into it instead);
+   or registers few images, seeded with the widest pair of the calibration's best
+   triplets and COLMAP's forward-motion limit lifted (report.json ``mapping`` and
+   one stderr line say what was done, including the seeded pair); the largest
+   model written to ``WORKSPACE/sparse/0`` (or an existing model given with
+   ``model``: the estimate is written into it instead);
 4. refine (``ba``, the default): global bundle adjustment of focal lengths and
    principal points with poses and points; ``none`` skips it.
 """
@@ -221,9 +223,9 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
                     refine["focal_length"] or refine["principal_point"],
                     seed=options.seed,
                 )
-                attempts = []
+                attempts, seeded = [], None
             else:
-                reconstruction, attempts = incremental_mapping_with_retries(
+                reconstruction, attempts, seeded = incremental_mapping_with_retries(
                     database,
                     images,
                     Path(tmp),
@@ -231,13 +233,16 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
                     refine["principal_point"],
                     seed=options.seed,
                     progress=options.progress,
+                    candidate_pairs=seed_candidate_pairs(calibrations),
+                    known_focal_cameras=focal_estimated_cameras(calibrations),
                 )
         mapping = {
             "mapper": options.mapper,
             "refined_while_mapping": refine,
             "attempts": [asdict(a) for a in attempts],
+            "seeded_pair": None if seeded is None else asdict(seeded),
         }
-        retried = describe_attempts(attempts)
+        retried = describe_attempts(attempts, seeded)
         if retried:
             print(retried, file=sys.stderr, flush=True)
             mapping["note"] = retried
@@ -268,6 +273,40 @@ def refined_while_mapping(calibrations: list) -> dict[str, bool]:
     focal = any(not (c.observable["fx"] and c.observable["fy"]) for c in calibrations)
     principal = any(not (c.observable["cx"] and c.observable["cy"]) for c in calibrations)
     return {"focal_length": focal, "principal_point": principal}
+
+
+def focal_estimated_cameras(calibrations: list) -> list[int]:
+    """Camera ids whose focal length the calibration estimated from the images (not held)."""
+    return [
+        int(camera_id)
+        for c in calibrations
+        if c.estimated["fx"]
+        for camera_id in getattr(c, "camera_ids", [c.camera_id])
+    ]
+
+
+#: Triplets of the calibration whose pairs are candidates for a seeded initial pair.
+SEED_TRIPLETS = 8
+
+
+def seed_candidate_pairs(
+    calibrations: list, max_triplets: int = SEED_TRIPLETS
+) -> list[tuple[int, int]]:
+    """Image pairs of each camera's best triplets: candidates for a seeded initial pair.
+
+    Best: the triplets the solve kept (``inlier``), by MSAC score (msac, msac-opt)
+    and then inlier tracks; each contributes its three pairs (image ids).
+    """
+    pairs: list[tuple[int, int]] = []
+    for calibration in calibrations:
+        kept = [t for t in calibration.triplets if t.inlier] or list(calibration.triplets)
+        kept.sort(
+            key=lambda t: (t.score if t.score is not None else 0.0, t.num_inliers), reverse=True
+        )
+        for triplet in kept[:max_triplets]:
+            a, b, c = (int(i) for i in triplet.image_ids)
+            pairs += [(a, b), (b, c), (a, c)]
+    return list(dict.fromkeys(tuple(sorted(p)) for p in pairs))
 
 
 def _stage(message: str, progress: bool) -> None:
