@@ -4,8 +4,10 @@ The TrifocalCalib estimate is the camera's starting intrinsics. Mapping keeps
 the parameters it determined fixed (a good calibration is what makes
 registration reliable) and refines the others (``ba_refine_focal_length``,
 ``ba_refine_principal_point``); the optional final global bundle adjustment then
-refines focal lengths and the principal point together with poses and points
-(distortion stays fixed).
+refines focal lengths and the principal point together with poses and points.
+Distortion, which TrifocalCalib never estimates (it undistorts with the stored
+parameters), is refined throughout when ``run`` asks for it: for camera models
+that have it, as COLMAP does (``ba_refine_extra_params``).
 
 Hard motion (:func:`incremental_mapping_with_retries`): when mapping finds no
 initial pair or registers fewer than ``MIN_REGISTERED_FRACTION`` of the images,
@@ -137,6 +139,7 @@ def incremental_mapping(
     refine_principal_point: bool | None = None,
     init_pair: tuple[int, int] | None = None,
     init_max_forward_motion: float | None = None,
+    refine_distortion: bool = False,
 ) -> pycolmap.Reconstruction:
     """pycolmap incremental mapping; returns the largest model, written to ``output_dir/0``.
 
@@ -155,8 +158,12 @@ def incremental_mapping(
         init_pair: image ids of the initial pair (``init_image_id1/2``; None: COLMAP
             searches for one).
         init_max_forward_motion: ``mapper.init_max_forward_motion`` (None: COLMAP's 0.95).
+        refine_distortion: refine the distortion parameters while mapping (COLMAP's
+            default; TrifocalCalib never estimates them).
     """
-    options = mapping_options(refine_intrinsics_while_mapping, seed, image_dir is not None)
+    options = mapping_options(
+        refine_intrinsics_while_mapping, seed, image_dir is not None, refine_distortion
+    )
     if refine_principal_point is not None:
         options.ba_refine_principal_point = refine_principal_point
     if init_min_tri_angle is not None:
@@ -209,6 +216,7 @@ def global_mapping(
     output_dir: Path,
     refine_intrinsics_while_mapping: bool | None = False,
     seed: int = 0,
+    refine_distortion: bool = False,
 ) -> pycolmap.Reconstruction:
     """pycolmap's global mapper (GLOMAP); returns the largest model, written to ``output_dir``.
 
@@ -221,6 +229,8 @@ def global_mapping(
             None keeps pycolmap's defaults (focal length and distortion refined, the
             principal point never), i.e. plain COLMAP.
         seed: random seed of the mapper.
+        refine_distortion: with ``refine_intrinsics_while_mapping`` not None, refine
+            the distortion parameters too.
     """
     options = pycolmap.GlobalPipelineOptions()
     options.random_seed = seed
@@ -231,7 +241,7 @@ def global_mapping(
         ba = options.mapper.bundle_adjustment
         ba.refine_focal_length = refine_intrinsics_while_mapping
         ba.refine_principal_point = refine_intrinsics_while_mapping
-        ba.refine_extra_params = False
+        ba.refine_extra_params = refine_distortion
     output_dir.mkdir(parents=True, exist_ok=True)
     with keep_colmap_quiet():
         models = pycolmap.global_mapping(
@@ -251,6 +261,7 @@ def incremental_mapping_with_retries(
     angles: tuple[float, ...] = INIT_TRI_ANGLES,
     candidate_pairs: list[tuple[int, int]] | None = None,
     known_focal_cameras: list[int] | None = None,
+    refine_distortion: bool = False,
 ) -> tuple[pycolmap.Reconstruction, list[MappingAttempt], InitialPair | None]:
     """Incremental mapping, retried with relaxed initialisation on hard motion.
 
@@ -273,6 +284,7 @@ def incremental_mapping_with_retries(
         known_focal_cameras: cameras whose focal length the seeded attempts treat as
             known (:func:`focal_marked_known`; the database must be a copy this
             tool owns); the first and the unseeded attempts leave the flags alone.
+        refine_distortion: refine the distortion parameters while mapping.
 
     Returns:
         The largest model, every attempt made, and the seeded pair (None when no
@@ -303,6 +315,7 @@ def incremental_mapping_with_retries(
                 refine_principal_point=refine_principal_point,
                 init_pair=pair,
                 init_max_forward_motion=forward,
+                refine_distortion=refine_distortion,
             )
         except CalibrationError:
             model = None
@@ -459,15 +472,16 @@ def focal_marked_known(database: Path, camera_ids: list[int]) -> Iterator[None]:
 
 
 def mapping_options(
-    refine_intrinsics: bool, seed: int, colours: bool
+    refine_intrinsics: bool, seed: int, colours: bool, distortion: bool = False
 ) -> pycolmap.IncrementalPipelineOptions:
     """Incremental mapping options: focal length and principal point refined while
-    mapping (or both held), distortion held, seeded; point colours read from the images."""
+    mapping (or both held), distortion refined with ``distortion`` (else held), seeded;
+    point colours read from the images."""
     options = pycolmap.IncrementalPipelineOptions()
     options.random_seed = seed
     options.ba_refine_focal_length = refine_intrinsics
     options.ba_refine_principal_point = refine_intrinsics
-    options.ba_refine_extra_params = False
+    options.ba_refine_extra_params = distortion
     options.extract_colors = colours
     return options
 

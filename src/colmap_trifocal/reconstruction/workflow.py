@@ -38,6 +38,7 @@ import pycolmap
 from ..common.errors import CalibrationError
 from ..common.files import refuse_overwriting_input, write_text_atomically
 from ..common.log import logger
+from ..database.cameras import PINHOLE_MODELS, CameraInfo
 from ..database.features import build_database
 from ..database.shared_cameras import merge_group_cameras
 from ..database.snapshot import copy_database, read_database, write_intrinsics
@@ -206,6 +207,7 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
 
     start = time.perf_counter()
     mapping: dict = {}
+    refine = refined_while_mapping(calibrations)
     if given_model is not None:
         reconstruction = given_model
         for camera_id, camera in updated.items():
@@ -214,7 +216,6 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
     else:
         with tempfile.TemporaryDirectory(dir=workspace) as tmp:
             _stage(f"mapping (pycolmap {options.mapper})", options.progress)
-            refine = refined_while_mapping(calibrations)
             if options.mapper == "global":
                 reconstruction = global_mapping(
                     database,
@@ -222,6 +223,7 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
                     Path(tmp),
                     refine["focal_length"] or refine["principal_point"],
                     seed=options.seed,
+                    refine_distortion=refine["distortion"],
                 )
                 attempts, seeded = [], None
             else:
@@ -235,6 +237,7 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
                     progress=options.progress,
                     candidate_pairs=seed_candidate_pairs(calibrations),
                     known_focal_cameras=focal_estimated_cameras(calibrations),
+                    refine_distortion=refine["distortion"],
                 )
         mapping = {
             "mapper": options.mapper,
@@ -250,8 +253,11 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
 
     start = time.perf_counter()
     if options.refine == "ba":
-        _stage("bundle adjustment of focal lengths and principal points", options.progress)
-        refine_intrinsics(reconstruction)
+        refined = "focal lengths, principal points" + (
+            " and distortion" if refine["distortion"] else ""
+        )
+        _stage(f"bundle adjustment of {refined}", options.progress)
+        refine_intrinsics(reconstruction, distortion=refine["distortion"])
     seconds["refine"] = time.perf_counter() - start
 
     model_dir = workspace / "sparse" / "0"
@@ -265,14 +271,19 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
 
 
 def refined_while_mapping(calibrations: list) -> dict[str, bool]:
-    """Which intrinsics mapping refines: those some camera's calibration did not determine.
+    """Which intrinsics mapping refines: those some camera's calibration did not determine,
+    and the distortion of camera models that have it (also in the final bundle adjustment).
 
     A held or weakly determined value baked into the model is what made ``run``
     end 1.27 % off where mapping that refines it reached 0.17 % (issue 13).
     """
     focal = any(not (c.observable["fx"] and c.observable["fy"]) for c in calibrations)
     principal = any(not (c.observable["cx"] and c.observable["cy"]) for c in calibrations)
-    return {"focal_length": focal, "principal_point": principal}
+    # TrifocalCalib undistorts with the stored parameters and never estimates them: a
+    # camera model with distortion has it refined, as COLMAP's mapper does by default
+    # (held at COLMAP's k = 0, a real lens biases every intrinsic; docs/limitations.md).
+    distortion = any(c.model not in PINHOLE_MODELS for c in calibrations)
+    return {"focal_length": focal, "principal_point": principal, "distortion": distortion}
 
 
 def focal_estimated_cameras(calibrations: list) -> list[int]:
@@ -349,6 +360,15 @@ def build_report(
                     zip(PARAMETER_NAMES, map(float, refined - estimate), strict=True)
                 ),
                 "relative_difference": float(np.mean(np.abs(refined / estimate - 1))),
+                # COLMAP's extra parameters (e.g. SIMPLE_RADIAL's k) after mapping and
+                # bundle adjustment, averaged over the group; [] for pinhole models.
+                "distortion": np.mean(
+                    [
+                        CameraInfo.from_pycolmap(reconstruction.cameras[c]).distortion
+                        for c in in_model
+                    ],
+                    axis=0,
+                ).tolist(),
                 "num_registered_images": sum(registered.get(c, 0) for c in ids),
             }
         )

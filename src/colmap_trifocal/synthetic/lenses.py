@@ -15,6 +15,8 @@ pixels and the principal point 2–3 % off the image centre. Conventions as in
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .scenes import SyntheticScene, make_scene
@@ -80,3 +82,21 @@ def wide_lens(
 ) -> SyntheticScene:
     """A 100° wide-angle pinhole (f = 269 px at 640 × 480, 0.35× COLMAP's default guess)."""
     return lens_scene(100.0, num_images, noise_px, seed)
+
+
+def with_radial_distortion(scene: SyntheticScene, k1: float) -> SyntheticScene:
+    """The scene seen through a lens with COLMAP ``SIMPLE_RADIAL`` distortion ``k1``.
+
+    Each observed pixel ``p`` becomes ``c + f · u · (1 + k1 · |u|²)`` with
+    ``u = (p − c) / f`` (normalised coordinates; f and c of the scene's camera, the
+    model of COLMAP's ``SIMPLE_RADIAL``); the noise already in ``p`` is distorted
+    with it. ``k1 < 0`` is barrel distortion. Returns a copy (observations only).
+    """
+    f = np.asarray(scene.intrinsics[:2], dtype=float)
+    centre = np.asarray(scene.intrinsics[2:4], dtype=float)
+    normalised = (scene.observations - centre) / f
+    radius2 = np.sum(normalised**2, axis=-1, keepdims=True)
+    distorted = centre + f * normalised * (1.0 + k1 * radius2)
+    shape = scene.observations.shape[:2]
+    observed = np.ones(shape, dtype=bool) if scene.visible is None else scene.visible
+    return replace(scene, observations=np.where(observed[..., None], distorted, 0.0))
