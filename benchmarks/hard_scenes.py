@@ -12,7 +12,8 @@ msac-opt, one worker. Prints per class and start:
   the default camera, runs whose focal length ended further from the truth than
   the focal search's own estimate (must be 0).
 
-    python benchmarks/hard_scenes.py [--seeds 3] [--classes straight,yaw3,turn,narrow,wide,handheld]
+    python benchmarks/hard_scenes.py [--seeds 3]
+        [--classes straight,yaw3,turn,narrow,wide,turntable,handheld]
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from colmap_trifocal import CalibrationOptions, calibrate_contents
 from colmap_trifocal.intrinsics.calibrate import default_guess
 from colmap_trifocal.intrinsics.results import PARAMETER_NAMES
 from colmap_trifocal.synthetic.database import scene_contents
-from colmap_trifocal.synthetic.lenses import narrow_lens, wide_lens
+from colmap_trifocal.synthetic.lenses import narrow_lens, turntable, wide_lens
 from colmap_trifocal.synthetic.motions import driving_turn, forward_driving, handheld_indoor
 
 CLASSES = {
@@ -35,6 +36,7 @@ CLASSES = {
     "turn": ("drive with a 90° turn", lambda seed: driving_turn(seed=seed)),
     "narrow": ("10° lens, ring", lambda seed: narrow_lens(seed=seed)),
     "wide": ("100° lens, ring", lambda seed: wide_lens(seed=seed)),
+    "turntable": ("11° lens, turntable (planar)", lambda seed: turntable(seed=seed)),
     "handheld": ("handheld VGA, 17 frames, 0.5 m", lambda seed: handheld_indoor(seed=seed)),
 }
 

@@ -37,7 +37,7 @@ from ..geometry.tracks import (
     select_triplets,
 )
 from ..geometry.trifocal import intrinsics_matrix
-from .diagnosis import diagnose
+from .diagnosis import diagnose, moves_forward
 from .focal_search import FocalSearchResult, search_focal
 from .fundamental import calibrate_from_fundamentals
 from .observability import FALLBACK_FACTOR, default_held_std, tolerance
@@ -154,7 +154,9 @@ def _prepare_tensors(
     graph = MatchGraph(data.matches, {i: len(k) for i, k in data.keypoints.items()})
     sequence = options.sequence
     if sequence is None:
-        sequence = is_sequence(graph, image_ids)
+        sequence = is_sequence(graph, image_ids) and moves_forward(
+            data.keypoints, data.matches, data.prior
+        )
     if sequence:
         logger.info("camera %d: a sequence: triplets over wide gaps and turns", camera.camera_id)
         motions = pair_motions(data.matches, data.keypoints)
@@ -207,13 +209,14 @@ def _prepare_tensors(
 
 
 def held_values(
-    prior: np.ndarray, search: FocalSearchResult | None
+    prior: np.ndarray, search: FocalSearchResult | None, adopt: bool = False
 ) -> tuple[np.ndarray, np.ndarray, str]:
     """What undetermined parameters are held at: the best estimate the run has.
 
     The focal search's focal length when the tracks favour it over the prior
-    (:attr:`.FocalSearchResult.improves_on_start`; the prior's aspect ratio kept),
-    else the prior's. The principal point is always the prior's.
+    (:attr:`.FocalSearchResult.improves_on_start`, or ``adopt``: the tensors agreed
+    better when estimated from it; the prior's aspect ratio kept), else the
+    prior's. The principal point is always the prior's.
 
     Returns:
         (fx, fy, cx, cy) in pixels, their std relative to the focal length (θ
@@ -222,11 +225,14 @@ def held_values(
     """
     held = np.asarray(prior, float).copy()
     std = default_held_std()
-    if search is None or not search.improves_on_start:
+    if search is None or not (search.improves_on_start or adopt):
         return held, std, "prior"
     aspect = np.sqrt(held[1] / held[0])
     held[:2] = search.focal / aspect, search.focal * aspect
-    std[:2] = search.relative_std
+    # Adopted without the search favouring it: the search's own spread says nothing
+    # about how far off it may be, so it is known no better than a prior.
+    trusted = search.improves_on_start and search.decisive
+    std[:2] = search.relative_std if trusted or not adopt else max(std[0], search.relative_std)
     return held, std, "focal-search"
 
 
@@ -244,25 +250,50 @@ def _solve_camera(
 
     held, held_std, held_source = held_values(data.prior, prepared.search)
 
-    def solve_from(start: np.ndarray, tensors: list[TripletTensor]) -> FallbackSolution:
+    def solve_from(
+        start: np.ndarray, tensors: list[TripletTensor], held: np.ndarray, held_std: np.ndarray
+    ) -> FallbackSolution:
         tolerances = tolerance(start, camera.width, camera.height)
         problem = CalibrationProblem(
             tensors, method, start, held, tolerances, options.tau, held_std
         )
         return solve_with_fallback(problem, base)
 
-    start, tensors = prepared.start, prepared.tensors
-    fallback = solve_from(start, tensors)
-    restart = _restart_point(fallback, start)
-    if options.restart and method != "direct" and _moved(restart, start):
+    def solve_and_restart(
+        start: np.ndarray, tensors: list[TripletTensor], held: np.ndarray, held_std: np.ndarray
+    ) -> tuple[np.ndarray, list[TripletTensor], FallbackSolution]:
+        fallback = solve_from(start, tensors, held, held_std)
+        restart = _restart_point(fallback, start)
+        if options.restart and method != "direct" and _moved(restart, start):
+            logger.info(
+                "camera %d: estimate far from the start; re-estimating the tensors",
+                camera.camera_id,
+            )
+            start = restart
+            tensors = _estimate_tensors(
+                prepared.triplets, prepared.tracks, start, prepared.seeds, camera, options
+            )
+            fallback = solve_from(start, tensors, held, held_std)
+        return start, tensors, fallback
+
+    start, tensors, fallback = solve_and_restart(prepared.start, prepared.tensors, held, held_std)
+    second = _second_start(prepared.search, start, fallback, method, options)
+    if second is not None:
         logger.info(
-            "camera %d: estimate far from the start; re-estimating the tensors", camera.camera_id
+            "camera %d: %d of %d tensors agree at the start; trying the focal search's %.1f px",
+            camera.camera_id,
+            int(fallback.solution.inlier_tensors.sum()),
+            len(tensors),
+            second[0],
         )
-        start = restart
-        tensors = _estimate_tensors(
-            prepared.triplets, prepared.tracks, start, prepared.seeds, camera, options
+        other_held, other_std, _ = held_values(data.prior, prepared.search, adopt=True)
+        other_tensors = _estimate_tensors(
+            prepared.triplets, prepared.tracks, second, prepared.seeds, camera, options
         )
-        fallback = solve_from(start, tensors)
+        other = solve_and_restart(second, other_tensors, other_held, other_std)
+        if _agreeing(other[2]) > _agreeing(fallback):
+            start, tensors, fallback = other
+            held, held_std, held_source = other_held, other_std, "focal-search"
     estimate = fold_focal_sign(theta_to_intrinsics(fallback.solution.theta, start))
     solution, model = fallback.solution, fallback.model
     # An estimate no tensor agrees with is garbage (e.g. copies of one image with
@@ -435,6 +466,38 @@ def _restart_point(fallback: FallbackSolution, start: np.ndarray) -> np.ndarray:
     elif trusted[1] and not trusted[0]:
         point[0] = point[1] * start[0] / start[1]
     return point
+
+
+def _agreeing(fallback: FallbackSolution) -> int:
+    """Tensors that agree with (are MSAC inliers at) a solve's estimate."""
+    return int(fallback.solution.inlier_tensors.sum())
+
+
+def _second_start(
+    search: FocalSearchResult | None,
+    start: np.ndarray,
+    fallback: FallbackSolution,
+    method: str,
+    options: CalibrationOptions,
+) -> np.ndarray | None:
+    """A second start when the tracks reject the first: the focal search's focal length.
+
+    When fewer than half the tensors agree with the estimate from ``start`` (the
+    tensors, estimated in coordinates normalised by a wrong K, are far from any
+    calibrated one: measured on an 11° turntable from COLMAP's default camera, 0 of
+    20 agreed) and the focal search ended more than ``RESTART_THRESHOLD`` away from
+    the start, the tensors are estimated again from the search's focal length; the
+    start with more agreeing tensors is kept. None: no second start.
+    """
+    if search is None or not options.restart or method == "direct":
+        return None
+    if 2 * _agreeing(fallback) >= len(fallback.solution.inlier_tensors):
+        return None
+    focal = float(np.sqrt(start[0] * start[1]))
+    if abs(search.focal / focal - 1.0) <= RESTART_THRESHOLD:
+        return None
+    aspect = np.sqrt(start[1] / start[0])
+    return np.array([search.focal / aspect, search.focal * aspect, start[2], start[3]])
 
 
 def _moved(estimate: np.ndarray, start: np.ndarray) -> bool:

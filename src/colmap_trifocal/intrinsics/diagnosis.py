@@ -53,6 +53,53 @@ def relative_motion(x1: np.ndarray, x2: np.ndarray) -> tuple[np.ndarray, np.ndar
     return R, t.ravel() / max(np.linalg.norm(t), 1e-12)
 
 
+#: Consecutive image pairs :func:`moves_forward` looks at (evenly spread).
+FORWARD_PAIRS = 12
+
+
+def moves_forward(
+    keypoints: dict[int, np.ndarray],
+    matches: dict[tuple[int, int], np.ndarray],
+    intrinsics: np.ndarray,
+    min_matches: int = 30,
+) -> bool:
+    """Whether the camera moves along its optical axis between consecutive images.
+
+    Over up to ``FORWARD_PAIRS`` pairs of consecutive image ids with ``min_matches``
+    verified matches: the median ``|t_z|`` of their relative translation (OpenCV's
+    essential matrix in coordinates normalised by ``intrinsics``, pixels) is at
+    least ``FORWARD_COSINE``. A drive or a walk-through video moves forward (its
+    adjacent frames barely differ, so triplets must span wider gaps); a turntable or
+    an orbit moves sideways (adjacent frames already do). Measured: synthetic drives
+    and the shared KITTI drive 1.0 (median), the synthetic 11° turntable 0.03–0.04,
+    fountain-P11 0.06, the synthetic handheld set 0.74.
+    """
+    ids = sorted(keypoints)
+    consecutive = [
+        (a, b)
+        for a, b in zip(ids, ids[1:], strict=False)
+        if len(matches.get((a, b), ())) >= min_matches
+    ]
+    if not consecutive:
+        return False
+    chosen = np.unique(np.linspace(0, len(consecutive) - 1, FORWARD_PAIRS).round().astype(int))
+    K_inv = np.linalg.inv(intrinsics_matrix(np.asarray(intrinsics, float)))
+    forward = []
+    for a, b in (consecutive[i] for i in chosen):
+        m = matches[(a, b)]
+        x1 = _normalised(keypoints[a][m[:, 0], :2], K_inv)
+        x2 = _normalised(keypoints[b][m[:, 1], :2], K_inv)
+        motion = relative_motion(x1, x2)
+        if motion is not None:
+            forward.append(abs(float(motion[1][2])))
+    return bool(forward) and float(np.median(forward)) >= FORWARD_COSINE
+
+
+def _normalised(pixels: np.ndarray, K_inv: np.ndarray) -> np.ndarray:
+    """Pixels (n, 2) in normalised camera coordinates (n, 2)."""
+    return pixels @ K_inv[:2, :2].T + K_inv[:2, 2]
+
+
 def homography_fraction(x1: np.ndarray, x2: np.ndarray) -> float:
     """Fraction of the tracks (pixels, (n, 2)) one homography explains within HOMOGRAPHY_PX."""
     if len(x1) < 8:
@@ -92,7 +139,7 @@ def diagnose(tracks: list[np.ndarray], intrinsics: np.ndarray) -> str:
     fractions, angles, vectors, forward = [], [], [], []
     for x in tracks[:MAX_TRIPLETS]:
         pixels = np.ascontiguousarray(x, dtype=np.float64)
-        normalised = pixels @ K_inv[:2, :2].T + K_inv[:2, 2]
+        normalised = _normalised(pixels, K_inv)
         for view in (1, 2):
             fractions.append(homography_fraction(pixels[0], pixels[view]))
             motion = relative_motion(normalised[0], normalised[view])

@@ -19,7 +19,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from .scenes import SyntheticScene, make_scene
+from .motions import scene_from_poses
+from .scenes import SyntheticScene, _as_generator, look_at_rotations, make_scene
 
 #: Image size of the lens scenes, pixels (VGA, as a small handheld or turntable set).
 LENS_WIDTH = 640
@@ -82,6 +83,53 @@ def wide_lens(
 ) -> SyntheticScene:
     """A 100° wide-angle pinhole (f = 269 px at 640 × 480, 0.35× COLMAP's default guess)."""
     return lens_scene(100.0, num_images, noise_px, seed)
+
+
+def turntable(
+    num_images: int = 16,
+    noise_px: float = 0.5,
+    seed: int | np.random.Generator | None = 0,
+    fov_deg: float = 11.0,
+    elevation_deg: float = 20.0,
+    num_points: int = 600,
+) -> SyntheticScene:
+    """A small object on a turntable shot through a narrow lens (issue 13's 11° case).
+
+    ``num_images`` views evenly around a full turn, all from ``elevation_deg`` above
+    the table (the camera looks down at the object), 3 m away; the object is a
+    0.24 m cube of points, of which each view sees the half facing it. All rotations
+    are about the turntable's axis (planar motion, the axis tilted by the
+    elevation in the camera), and the object's depth is 8 % of the distance (weak
+    perspective): the focal length is only weakly determined by any method.
+    """
+    rng = _as_generator(seed)
+    angles = np.linspace(0.0, 2.0 * np.pi, num_images, endpoint=False)
+    distance, elevation = 3.0, np.deg2rad(elevation_deg)
+    centers = distance * np.stack(
+        [
+            np.cos(elevation) * np.sin(angles),
+            -np.sin(elevation) * np.ones(num_images),  # world y points down: above
+            -np.cos(elevation) * np.cos(angles),
+        ],
+        axis=1,
+    )
+    points = rng.uniform(-0.12, 0.12, size=(num_points, 3))
+    aims = -centers + rng.normal(0.0, 0.005, size=(num_images, 3))
+    rotations = look_at_rotations(aims, rng.normal(0.0, np.deg2rad(0.3), num_images))
+    scene = scene_from_poses(
+        rotations,
+        centers,
+        points,
+        noise_px,
+        rng,
+        intrinsics=lens_intrinsics(fov_deg),
+        width=LENS_WIDTH,
+        height=LENS_HEIGHT,
+    )
+    facing = (centers @ scene.points.T) > 0  # the half of the object facing the camera
+    scene.visible = scene.visible & facing
+    scene.observations[~scene.visible] = 0.0
+    return scene
 
 
 def with_radial_distortion(scene: SyntheticScene, k1: float) -> SyntheticScene:
