@@ -17,10 +17,21 @@ from colmap_trifocal.geometry.tensor_estimation import (
     estimate_triplet_tensor,
     transfer_errors,
 )
+from colmap_trifocal.geometry.tracks import (
+    MatchGraph,
+    plane_parallax,
+    select_triplets,
+    triplet_points,
+)
 from colmap_trifocal.geometry.trifocal import (
     intrinsics_matrix,
     normalize_tensor,
     tensor_from_cameras,
+)
+from colmap_trifocal.intrinsics.selfcalibration import (
+    MSAC_TAU,
+    ConstraintProblem,
+    intrinsics_to_theta,
 )
 from colmap_trifocal.synthetic.database import scene_contents
 from colmap_trifocal.synthetic.facade import facade_scene
@@ -102,20 +113,54 @@ def test_general_triplets_are_estimated_as_before() -> None:
     assert tensor_distance(default.tensor, scene.true_tensor(views, K0)) < 0.05
 
 
-def test_planar_option_makes_facade_triplets_agree() -> None:
-    """Facade with 1 % relief, ±5 % prior: with the planar handling at least 15 of 20
-    triplets agree (11 without it, measured); the estimate stays within 0.1 %."""
+@pytest.mark.parametrize("views", [(1, 3, 7), (4, 7, 9)])
+def test_facade_triplet_tensor_agrees_with_the_true_intrinsics(views: tuple[int, int, int]) -> None:
+    """1 % relief, +3 % prior: refined from two starts to convergence, the tensor's
+    constraints at the true K are within the MSAC threshold. Measured with one start
+    and the BA's usual stop (``final_ba_tolerance=1e-4, calibrated_start=False``):
+    (1, 3, 7) ended in a local minimum (σ 0.78 px, ‖r‖ 514), (4, 7, 9) along a flat
+    valley (σ 0.57 px, ‖r‖ 282); now ‖r‖ 3.7 and 8.0."""
+    scene = facade_scene(relief=0.01, seed=0, noise_px=1.0, num_points=1000)
+    prior = scene.intrinsics * 1.03
+    K0 = intrinsics_matrix(prior)
+    pixels, _ = normalised_tracks(scene, views, K0)
+    tensor = estimate_triplet_tensor(views, pixels, K0, np.random.default_rng(0))
+    assert tensor is not None
+    theta = intrinsics_to_theta(scene.intrinsics, prior)
+    assert ConstraintProblem.build([tensor], theta).norms(theta)[0] < MSAC_TAU
+    assert tensor.sigma_px < 0.6  # uniform ±1 px noise: 0.577 px
+
+
+def test_selection_prefers_wide_facade_triplets() -> None:
+    """Ranked by tracks x parallax off the plane (keypoints given), the picked facade
+    triplets span more of the walk than those ranked by tracks alone."""
+    scene = facade_scene(relief=0.01, seed=0, noise_px=1.0, num_points=1000)
+    contents = scene_contents(scene)
+    graph = MatchGraph(contents.matches, {i: len(k) for i, k in contents.keypoints.items()})
+    ids = sorted(contents.keypoints)
+    by_tracks = select_triplets(graph, ids, 40, 20)
+    by_parallax = select_triplets(graph, ids, 40, 20, keypoints=contents.keypoints)
+    assert len(by_parallax) == 20
+
+    def spans(triplets: list) -> np.ndarray:
+        return np.array([t.image_ids[2] - t.image_ids[0] for t in triplets])
+
+    assert np.median(spans(by_parallax)) >= np.median(spans(by_tracks)) + 2
+    widest = max(by_parallax, key=lambda t: t.image_ids[2] - t.image_ids[0])
+    assert plane_parallax(triplet_points(widest, contents.keypoints)) > 5.0
+
+
+def test_facade_triplets_agree_and_the_estimate_is_accurate_by_default() -> None:
+    """Facade with 1 % relief, ±5 % prior, default options: at least 15 of 20 triplets
+    agree and the mean error of (fx, fy, cx, cy) is within 0.08 % (twice the 0.04 %
+    of the same cameras on a scene spread through depth). Measured: 18/20, 0.05 %;
+    before (tracks-only selection, one start, BA stopped at 1e-4): 12/20, 0.09 %."""
     scene = facade_scene(relief=0.01, seed=0, noise_px=1.0, num_points=1000)
     truth = scene.intrinsics
     prior = truth * (1.0 + 0.05 * np.random.default_rng(99).choice([-1.0, 1.0], 4))
-    options = CalibrationOptions(
-        prior=tuple(prior),
-        seed=0,
-        workers=1,
-        tensor=TensorEstimationOptions(planar_share=PLANAR_SHARE),
-    )
+    options = CalibrationOptions(prior=tuple(prior), seed=0, workers=1)
     (result,) = calibrate_contents(scene_contents(scene), options)
     assert result.num_triplets == 20
     assert result.num_inlier_triplets >= 15
+    assert np.abs(result.intrinsics / truth - 1.0).mean() < 0.0008
     assert all(result.observable.values())
-    assert np.abs(result.intrinsics / truth - 1.0).mean() < 0.001

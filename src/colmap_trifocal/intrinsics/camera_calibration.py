@@ -164,7 +164,9 @@ def _prepare_tensors(
             graph, image_ids, motions, options.min_tracks, options.max_triplets or 100
         )
     else:
-        triplets = select_triplets(graph, image_ids, options.min_tracks, options.max_triplets)
+        triplets = select_triplets(
+            graph, image_ids, options.min_tracks, options.max_triplets, keypoints=data.keypoints
+        )
     if not triplets:
         raise CalibrationError(
             f"camera {camera.camera_id}: no image triplet with at least {options.min_tracks} "
