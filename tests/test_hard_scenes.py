@@ -11,7 +11,7 @@ import pytest
 from colmap_trifocal import CalibrationError, CalibrationOptions, calibrate_contents
 from colmap_trifocal.geometry.tracks import MatchGraph, select_triplets
 from colmap_trifocal.intrinsics.camera_calibration import held_values
-from colmap_trifocal.intrinsics.diagnosis import diagnose
+from colmap_trifocal.intrinsics.diagnosis import diagnose, moves_forward
 from colmap_trifocal.intrinsics.focal_search import FocalSearchResult, search_focal
 from colmap_trifocal.intrinsics.options import default_guess
 from colmap_trifocal.reconstruction.mapping import (
@@ -20,7 +20,7 @@ from colmap_trifocal.reconstruction.mapping import (
 )
 from colmap_trifocal.synthetic.database import scene_contents
 from colmap_trifocal.synthetic.demo import make_demo_database
-from colmap_trifocal.synthetic.lenses import narrow_lens, wide_lens
+from colmap_trifocal.synthetic.lenses import narrow_lens, turntable, wide_lens
 from colmap_trifocal.synthetic.motions import (
     driving_turn,
     forward_driving,
@@ -150,6 +150,34 @@ def test_narrow_lens_from_the_default_camera() -> None:
         std = data["std"][name]
         if std is not None:
             assert abs(result.intrinsics[index] - scene.intrinsics[index]) < 3 * std
+
+
+def test_forward_motion_tells_a_drive_from_a_turntable() -> None:
+    """Both are sequences by their view graphs; only the drive moves forward."""
+    for scene, forward in ((driving_turn(seed=0), True), (turntable(seed=0), False)):
+        contents = scene_contents(scene)
+        assert moves_forward(contents.keypoints, contents.matches, scene.intrinsics) is forward
+        guess = default_guess(scene.width, scene.height)
+        assert moves_forward(contents.keypoints, contents.matches, guess) is forward
+
+
+def test_turntable_with_a_narrow_lens_from_the_default_camera() -> None:
+    """Issue 13's 11° turntable ended 43 % off from the default camera (f = 768 px).
+
+    The synthetic one ended 52 % off, held at the default guess: 0 of 20 tensors
+    agreed there, and the sequence selection picked wide, weak triplets. Now the
+    tensors are estimated again from the focal search and a ring keeps the general
+    selection (measured 0.09 % on this seed).
+    """
+    scene = turntable(seed=0)
+    (result,) = calibrate_contents(
+        scene_contents(scene), CalibrationOptions(no_prior=True, seed=0, workers=1)
+    )
+    error = abs(result.intrinsics[0] / scene.intrinsics[0] - 1)
+    assert error < 0.02
+    assert result.source["fx"] == "trifocal" and result.num_inlier_triplets >= 15
+    std = result.std["fx"]
+    assert std is not None and error * scene.intrinsics[0] < 3 * std
 
 
 def test_small_handheld_set_from_the_default_camera() -> None:
