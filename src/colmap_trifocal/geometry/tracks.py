@@ -60,6 +60,11 @@ SEQUENCE_CORRELATION = -0.4
 PLANE_THRESHOLD_PX = 3.0
 #: Percentile of the tracks' distances from that plane that :func:`plane_parallax` reports.
 PARALLAX_PERCENTILE = 75.0
+#: Tracks (evenly spaced) and RANSAC iterations :func:`plane_parallax` uses per pair.
+#: Measured on the demo (1500 tracks, 20 % wrong matches): all tracks and 2000
+#: iterations took 4.3 of the calibration's 8.7 CPU seconds.
+PARALLAX_MAX_TRACKS = 300
+PARALLAX_RANSAC_ITERATIONS = 500
 
 
 @dataclass(frozen=True)
@@ -325,13 +330,22 @@ def plane_parallax(points: np.ndarray) -> float:
     tracks' distances from it in the pair's second view; the largest of the three
     (the widest pair: relief parallax grows with the baseline). In a scene spread
     through depth there is no dominant plane and the value is large for every
-    triplet with a baseline. ``points``: (3, n, 2) pixels.
+    triplet with a baseline. ``points``: (3, n, 2) pixels; at most
+    :data:`PARALLAX_MAX_TRACKS` of them are used.
     """
+    n = points.shape[1]
+    if n > PARALLAX_MAX_TRACKS:  # evenly spaced: deterministic, and RANSAC cost bounded
+        points = points[:, np.linspace(0, n - 1, PARALLAX_MAX_TRACKS).round().astype(int)]
     ones = np.ones((points.shape[1], 1))
     parallax = 0.0
     for a, b in ((0, 1), (0, 2), (1, 2)):
         H, _ = cv2.findHomography(
-            points[a], points[b], cv2.RANSAC, PLANE_THRESHOLD_PX, maxIters=2000, confidence=0.999
+            points[a],
+            points[b],
+            cv2.RANSAC,
+            PLANE_THRESHOLD_PX,
+            maxIters=PARALLAX_RANSAC_ITERATIONS,
+            confidence=0.999,
         )
         if H is None:
             continue
