@@ -161,17 +161,20 @@ def test_forward_motion_tells_a_drive_from_a_turntable() -> None:
         assert moves_forward(contents.keypoints, contents.matches, guess) is forward
 
 
-def test_turntable_with_a_narrow_lens_from_the_default_camera() -> None:
+@pytest.mark.parametrize("seed", [0, 1])
+def test_turntable_with_a_narrow_lens_from_the_default_camera(seed: int) -> None:
     """Issue 13's 11° turntable ended 43 % off from the default camera (f = 768 px).
 
     The synthetic one ended 52 % off, held at the default guess: 0 of 20 tensors
-    agreed there, and the sequence selection picked wide, weak triplets. Now the
-    tensors are estimated again from the focal search and a ring keeps the general
-    selection (measured 0.09 % on this seed).
+    agreed there, and the sequence selection picked wide, weak triplets. Now a ring
+    keeps the general selection and the tensors are estimated again from the focal
+    search's candidates: seed 0 from its minimum (2410 px; result 0.06 % off), seed 1
+    only from its third local minimum (1096 and 1237 px: 0 of 20 agree; 1930 px:
+    19 agree, result 0.8 % off).
     """
-    scene = turntable(seed=0)
+    scene = turntable(seed=seed)
     (result,) = calibrate_contents(
-        scene_contents(scene), CalibrationOptions(no_prior=True, seed=0, workers=1)
+        scene_contents(scene), CalibrationOptions(no_prior=True, seed=seed, workers=1)
     )
     error = abs(result.intrinsics[0] / scene.intrinsics[0] - 1)
     assert error < 0.02

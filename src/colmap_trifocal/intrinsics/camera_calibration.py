@@ -211,14 +211,13 @@ def _prepare_tensors(
 
 
 def held_values(
-    prior: np.ndarray, search: FocalSearchResult | None, adopt: bool = False
+    prior: np.ndarray, search: FocalSearchResult | None
 ) -> tuple[np.ndarray, np.ndarray, str]:
     """What undetermined parameters are held at: the best estimate the run has.
 
     The focal search's focal length when the tracks favour it over the prior
-    (:attr:`.FocalSearchResult.improves_on_start`, or ``adopt``: the tensors agreed
-    better when estimated from it; the prior's aspect ratio kept), else the
-    prior's. The principal point is always the prior's.
+    (:attr:`.FocalSearchResult.improves_on_start`; the prior's aspect ratio kept),
+    else the prior's. The principal point is always the prior's.
 
     Returns:
         (fx, fy, cx, cy) in pixels, their std relative to the focal length (θ
@@ -227,14 +226,11 @@ def held_values(
     """
     held = np.asarray(prior, float).copy()
     std = default_held_std()
-    if search is None or not (search.improves_on_start or adopt):
+    if search is None or not search.improves_on_start:
         return held, std, "prior"
     aspect = np.sqrt(held[1] / held[0])
     held[:2] = search.focal / aspect, search.focal * aspect
-    # Adopted without the search favouring it: the search's own spread says nothing
-    # about how far off it may be, so it is known no better than a prior.
-    trusted = search.improves_on_start and search.decisive
-    std[:2] = search.relative_std if trusted or not adopt else max(std[0], search.relative_std)
+    std[:2] = search.relative_std
     return held, std, "focal-search"
 
 
@@ -279,20 +275,25 @@ def _solve_camera(
         return start, tensors, fallback
 
     start, tensors, fallback = solve_and_restart(prepared.start, prepared.tensors, held, held_std)
-    second = _second_start(prepared.search, start, fallback, method, options)
-    if second is not None:
+    for other_start in _other_starts(prepared.search, start, fallback, method, options):
+        if 2 * _agreeing(fallback) >= len(fallback.solution.inlier_tensors):
+            break
         logger.info(
-            "camera %d: %d of %d tensors agree at the start; trying the focal search's %.1f px",
+            "camera %d: %d of %d tensors agree; estimating them again from f = %.1f px "
+            "(focal search)",
             camera.camera_id,
-            int(fallback.solution.inlier_tensors.sum()),
-            len(tensors),
-            second[0],
+            _agreeing(fallback),
+            len(fallback.solution.inlier_tensors),
+            other_start[0],
         )
-        other_held, other_std, _ = held_values(data.prior, prepared.search, adopt=True)
+        # Held (if the focal length stays undetermined) at this start, known no better
+        # than a prior: the search's cost did not single it out.
+        other_held = np.r_[other_start[:2], data.prior[2:]]
+        other_std = default_held_std()
         other_tensors = _estimate_tensors(
-            prepared.triplets, prepared.tracks, second, prepared.seeds, camera, options
+            prepared.triplets, prepared.tracks, other_start, prepared.seeds, camera, options
         )
-        other = solve_and_restart(second, other_tensors, other_held, other_std)
+        other = solve_and_restart(other_start, other_tensors, other_held, other_std)
         if _agreeing(other[2]) > _agreeing(fallback):
             start, tensors, fallback = other
             held, held_std, held_source = other_held, other_std, "focal-search"
@@ -475,31 +476,41 @@ def _agreeing(fallback: FallbackSolution) -> int:
     return int(fallback.solution.inlier_tensors.sum())
 
 
-def _second_start(
+#: Other starts :func:`_other_starts` offers at most (besides the first).
+MAX_OTHER_STARTS = 3
+
+
+def _other_starts(
     search: FocalSearchResult | None,
     start: np.ndarray,
     fallback: FallbackSolution,
     method: str,
     options: CalibrationOptions,
-) -> np.ndarray | None:
-    """A second start when the tracks reject the first: the focal search's focal length.
+) -> list[np.ndarray]:
+    """Other starts when the tracks reject the first: the focal search's candidates.
 
     When fewer than half the tensors agree with the estimate from ``start`` (the
     tensors, estimated in coordinates normalised by a wrong K, are far from any
-    calibrated one: measured on an 11° turntable from COLMAP's default camera, 0 of
-    20 agreed) and the focal search ended more than ``RESTART_THRESHOLD`` away from
-    the start, the tensors are estimated again from the search's focal length; the
-    start with more agreeing tensors is kept. None: no second start.
+    calibrated one: on an 11° turntable from COLMAP's default camera, 0 of 20
+    agreed), the tensors are estimated again from the focal search's focal length,
+    then from the other local minima of its coarse cost curve (lowest cost first;
+    the weak perspective of a narrow lens can put the global minimum 3× off), each
+    more than ``RESTART_THRESHOLD`` from the focal lengths tried before, at most
+    ``MAX_OTHER_STARTS``. The caller keeps the start with most agreeing tensors and
+    stops at the first that half of them agree with.
     """
     if search is None or not options.restart or method == "direct":
-        return None
+        return []
     if 2 * _agreeing(fallback) >= len(fallback.solution.inlier_tensors):
-        return None
-    focal = float(np.sqrt(start[0] * start[1]))
-    if abs(search.focal / focal - 1.0) <= RESTART_THRESHOLD:
-        return None
+        return []
     aspect = np.sqrt(start[1] / start[0])
-    return np.array([search.focal / aspect, search.focal * aspect, start[2], start[3]])
+    tried = [float(np.sqrt(start[0] * start[1]))]
+    starts = []
+    for focal in [search.focal, *search.local_minima()]:
+        if all(abs(focal / f - 1.0) > RESTART_THRESHOLD for f in tried):
+            tried.append(focal)
+            starts.append(np.array([focal / aspect, focal * aspect, start[2], start[3]]))
+    return starts[:MAX_OTHER_STARTS]
 
 
 def _moved(estimate: np.ndarray, start: np.ndarray) -> bool:

@@ -31,7 +31,7 @@ focal length explains the tracks), and the start is kept.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -96,6 +96,20 @@ class FocalSearchResult:
     decisive: bool = False
     contrast: float = 1.0
     start_ratio: float = 1.0
+    #: (k,) the coarse grid's focal lengths (pixels) and their summed costs (empty
+    #: without an image size): what :meth:`local_minima` reads.
+    coarse_focals: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    coarse_costs: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def local_minima(self) -> list[float]:
+        """Focal lengths (pixels) at the interior local minima of the coarse cost
+        curve, lowest cost first: where else the tracks could be explained when the
+        curve is not decisive (a narrow lens seen in weak perspective)."""
+        costs = self.coarse_costs
+        if len(costs) < 3:
+            return []
+        inner = np.flatnonzero((costs[1:-1] < costs[:-2]) & (costs[1:-1] <= costs[2:])) + 1
+        return [float(self.coarse_focals[i]) for i in inner[np.argsort(costs[inner])]]
 
     @property
     def improves_on_start(self) -> bool:
@@ -212,6 +226,7 @@ def search_focal(
     order = np.argsort(all_focals)
     result = _result(fine, per_triplet, focal0, all_focals[order], all_costs[order])
     result.start_ratio = start_cost / max(float(per_triplet.sum(axis=0).min()), 1e-12)
+    result.coarse_focals, result.coarse_costs = coarse, coarse_costs
     if best in (0, len(coarse) - 1):  # the minimum lies at the end of the searched range
         result.decisive = False
     return result
