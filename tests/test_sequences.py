@@ -73,15 +73,19 @@ def test_sequence_triplets_span_wider_gaps_and_the_turn(turning_drive) -> None:
 
 
 def test_sequence_selection_improves_the_calibration(turning_drive) -> None:
-    """Same drive and prior: the wide triplets give a smaller error and a smaller std."""
+    """Same drive and prior: the wide triplets give a smaller error and a smaller std.
+
+    20 triplets, the default. Measured (session 4): sequence 0.04 % mean error, fx
+    std 0.97 px; general selection (tracks × parallax) 0.10 %, 1.9 px. With 8
+    triplets the general one's error was lower by chance (0.10 against 0.13 %) but
+    its std 4× larger.
+    """
     scene, contents = turning_drive
     truth = scene.intrinsics
     prior = tuple(truth * (1.0 + 0.05 * np.array([1.0, -1.0, 1.0, -1.0])))
     results = {}
     for sequence in (False, True):
-        options = CalibrationOptions(
-            prior=prior, seed=0, workers=1, max_triplets=8, sequence=sequence
-        )
+        options = CalibrationOptions(prior=prior, seed=0, workers=1, sequence=sequence)
         (results[sequence],) = calibrate_contents(contents, options)
     old, new = results[False], results[True]
     # Yaw only: fy is tied to fx (planar motion), and the report says so.
