@@ -228,8 +228,7 @@ def held_values(
     std = default_held_std()
     if search is None or not search.improves_on_start:
         return held, std, "prior"
-    aspect = np.sqrt(held[1] / held[0])
-    held[:2] = search.focal / aspect, search.focal * aspect
+    held[:2] = _with_focal(held, search.focal)[:2]
     std[:2] = search.relative_std
     return held, std, "focal-search"
 
@@ -275,7 +274,7 @@ def _solve_camera(
         return start, tensors, fallback
 
     start, tensors, fallback = solve_and_restart(prepared.start, prepared.tensors, held, held_std)
-    for other_start in _other_starts(prepared.search, start, fallback, method, options):
+    for other_start in _other_starts(prepared.search, start, method, options):
         if 2 * _agreeing(fallback) >= len(fallback.solution.inlier_tensors):
             break
         logger.info(
@@ -483,7 +482,6 @@ MAX_OTHER_STARTS = 3
 def _other_starts(
     search: FocalSearchResult | None,
     start: np.ndarray,
-    fallback: FallbackSolution,
     method: str,
     options: CalibrationOptions,
 ) -> list[np.ndarray]:
@@ -496,21 +494,26 @@ def _other_starts(
     then from the other local minima of its coarse cost curve (lowest cost first;
     the weak perspective of a narrow lens can put the global minimum 3× off), each
     more than ``RESTART_THRESHOLD`` from the focal lengths tried before, at most
-    ``MAX_OTHER_STARTS``. The caller keeps the start with most agreeing tensors and
-    stops at the first that half of them agree with.
+    ``MAX_OTHER_STARTS``. The caller tries them only while fewer than half the
+    tensors agree, keeps the start with most agreeing tensors and stops at the first
+    that half of them agree with.
     """
     if search is None or not options.restart or method == "direct":
         return []
-    if 2 * _agreeing(fallback) >= len(fallback.solution.inlier_tensors):
-        return []
-    aspect = np.sqrt(start[1] / start[0])
     tried = [float(np.sqrt(start[0] * start[1]))]
     starts = []
     for focal in [search.focal, *search.local_minima()]:
         if all(abs(focal / f - 1.0) > RESTART_THRESHOLD for f in tried):
             tried.append(focal)
-            starts.append(np.array([focal / aspect, focal * aspect, start[2], start[3]]))
+            starts.append(_with_focal(start, focal))
     return starts[:MAX_OTHER_STARTS]
+
+
+def _with_focal(intrinsics: np.ndarray, focal: float) -> np.ndarray:
+    """(fx, fy, cx, cy) with √(fx·fy) set to ``focal`` (pixels), the aspect ratio and the
+    principal point of ``intrinsics`` kept."""
+    aspect = np.sqrt(intrinsics[1] / intrinsics[0])
+    return np.array([focal / aspect, focal * aspect, intrinsics[2], intrinsics[3]])
 
 
 def _moved(estimate: np.ndarray, start: np.ndarray) -> bool:
