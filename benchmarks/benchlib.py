@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
-from colmap_trifocal.reconstruction.mapping import silenced_stderr
+from colmap_trifocal.common.log import silenced_stderr
 
 #: Strecha camera (fountain-P11 / Herz-Jesus-P8), 3072 x 2048, pixels.
 STRECHA_INTRINSICS = (2759.48, 2764.16, 1520.69, 1006.81)

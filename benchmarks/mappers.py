@@ -32,13 +32,14 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
+from colmap_trifocal.common.log import silenced_stderr
 from colmap_trifocal.database.features import build_database
 from colmap_trifocal.datasets.strecha import (
     default_datasets_root,
     ground_truth_intrinsics,
     scene_images,
 )
-from colmap_trifocal.reconstruction.mapping import camera_intrinsics, silenced_stderr
+from colmap_trifocal.reconstruction.mapping import camera_intrinsics
 from colmap_trifocal.reconstruction.workflow import RunOptions, run_pipeline
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -741,6 +741,29 @@ def _send_sighup() -> None:
     os.kill(os.getpid(), signal.SIGHUP)
 
 
+@pytest.fixture(autouse=True)
+def usual_signal_dispositions() -> Iterator[None]:
+    """SIGINT, SIGTERM and SIGHUP handled as in a terminal, for this process and its children.
+
+    A shell starts a background job with SIGINT ignored, and ``nohup`` ignores SIGHUP;
+    the CLI rightly leaves an ignored signal ignored, so the signal tests set the
+    dispositions they test instead of inheriting the runner's (children inherit them).
+    """
+    saved = {signum: signal.getsignal(signum) for signum in SIGNAL_DISPOSITIONS}
+    for signum, disposition in SIGNAL_DISPOSITIONS.items():
+        signal.signal(signum, disposition)
+    yield
+    for signum, disposition in saved.items():
+        signal.signal(signum, disposition)
+
+
+#: Each terminating signal's disposition in an interactive terminal.
+SIGNAL_DISPOSITIONS = {
+    signal.SIGINT: signal.default_int_handler,
+    signal.SIGTERM: signal.SIG_DFL,
+    signal.SIGHUP: signal.SIG_DFL,
+}
+
 #: How each signal ends a run: its one line and exit status.
 SIGNAL_ENDINGS = {
     "sigint": (_send_sigint, "error: interrupted", 130),

@@ -40,7 +40,9 @@ import time
 import numpy as np
 import pycolmap
 
+from ..common.bundle_adjustment import bundle_adjustment_options
 from ..common.errors import CalibrationError
+from ..common.log import keep_colmap_quiet
 from ..database.snapshot import DatabaseContents
 from ..intrinsics.calibrate import (
     METHODS,
@@ -48,7 +50,7 @@ from ..intrinsics.calibrate import (
     calibrate_contents_methods,
 )
 from ..intrinsics.results import PARAMETER_NAMES
-from ..reconstruction.mapping import camera_intrinsics, keep_colmap_quiet
+from ..reconstruction.mapping import camera_intrinsics
 from ..synthetic.database import CAMERA_ID, scene_contents
 from ..synthetic.scenes import SyntheticScene, make_scene, perturbed_prior
 from .records import RunRecord
@@ -125,16 +127,11 @@ def ground_truth_reconstruction(
 
 def _floor_options() -> pycolmap.BundleAdjustmentOptions:
     """Refine focal lengths and principal point (no distortion), one thread, tight."""
-    options = pycolmap.BundleAdjustmentOptions()
-    options.refine_focal_length = True
-    options.refine_principal_point = True
-    options.refine_extra_params = False
-    options.print_summary = False
-    solver = options.ceres.solver_options
-    solver.num_threads = 1  # the runs are parallelised outside
-    solver.gradient_tolerance = _BA_GRADIENT_TOLERANCE
-    solver.function_tolerance = _BA_FUNCTION_TOLERANCE
-    return options
+    return bundle_adjustment_options(
+        function_tolerance=_BA_FUNCTION_TOLERANCE,
+        gradient_tolerance=_BA_GRADIENT_TOLERANCE,
+        threads=1,  # the runs are parallelised outside
+    )
 
 
 def ba_floor(scene: SyntheticScene, start: np.ndarray | None = None) -> np.ndarray:

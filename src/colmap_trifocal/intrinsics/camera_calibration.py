@@ -59,6 +59,8 @@ from .selfcalibration import (
     solve_with_fallback,
     theta_to_intrinsics,
 )
+from .triplet_bundle import TripletBundleResult, polish_intrinsics, pycolmap_camera_setup
+from .uncertainty import jackknife_covariance
 
 
 @dataclass
@@ -310,15 +312,21 @@ def _solve_camera(
         )
     if model != base:
         logger.info("camera %d: assumed %s", camera.camera_id, "; ".join(model.assumptions()))
+    focal_scale = np.array([start[0], start[1], start[0], start[1]])
+    relative = fallback.relative_std
+    polish = None
+    if method == "msac-opt" and options.triplet_bundle:
+        estimate, relative, agree, polish = _polished(
+            data, prepared, tensors, start, estimate, fallback, agree, options.tau
+        )
     estimated = model.estimated(camera.single_focal)
     # Determined: estimated, std within tolerance (held values' uncertainty counted)
     # and actually moved by the data (:func:`.selfcalibration.data_moves`).
-    within = (fallback.relative_std < fallback.tolerances) & fallback.moved
+    within = (relative < fallback.tolerances) & fallback.moved
     observable = {
         name: estimated[name] and bool(ok) for name, ok in zip(PARAMETER_NAMES, within, strict=True)
     }
-    focal_scale = np.array([start[0], start[1], start[0], start[1]])
-    std = fallback.relative_std * focal_scale
+    std = relative * focal_scale
     unconstrained = fallback.unconstrained.relative_std * focal_scale
     source = parameter_sources(estimated, model, held_source)
     diagnosis = None if all(observable.values()) else diagnose(prepared.tracks, estimate)
@@ -351,6 +359,7 @@ def _solve_camera(
         source=source,
         focal_search=_search_summary(prepared.search),
         diagnosis=diagnosis,
+        triplet_bundle=polish,
         unconstrained_std={
             name: finite_or_none(s) for name, s in zip(PARAMETER_NAMES, unconstrained, strict=True)
         },
@@ -358,6 +367,98 @@ def _solve_camera(
         tensors=tensors,
         stored_camera=camera,
     )
+
+
+def _polished(
+    data: _CameraInput,
+    prepared: _PreparedTensors,
+    tensors: list[TripletTensor],
+    start: np.ndarray,
+    estimate: np.ndarray,
+    fallback: FallbackSolution,
+    agree: int,
+    tau: float,
+) -> tuple[np.ndarray, np.ndarray, int, dict | None]:
+    """The estimate, its relative std, the agreeing tensors and a summary after the polish.
+
+    The bundle adjustment of the agreeing triplets (:mod:`.triplet_bundle`) replaces
+    the constraint estimate when
+
+    * at least as many triplets agree with it (λ < τ²) as tensors did (‖r‖ < τ), and
+    * its image jackknife spreads no more than the constraint solve's (the sum of the
+      estimated parameters' jackknife variances, relative to the focal length; both
+      over the same image groups). Measured: on the synthetic straight drive, where
+      the focal length is barely determined, the polish's jackknife std of fx was
+      1.6 % against the constraints' 0.6 %, and its error 1.0 % against 0.5 %.
+
+    Its std is the larger of the constraint solve's (which counts held and tied
+    values' uncertainty) and the polish's own jackknife spread. Otherwise everything
+    is returned unchanged.
+    """
+    model, relative_std = fallback.model, fallback.relative_std
+    if pycolmap_camera_setup(model) is None:
+        return estimate, relative_std, agree, None
+    camera = data.camera
+    tracks = {
+        tuple(triplet.image_ids): x
+        for triplet, x in zip(prepared.triplets, prepared.tracks, strict=True)
+    }
+    polished = polish_intrinsics(
+        tensors, tracks, start, estimate, model, (camera.width, camera.height), tau
+    )
+    summary = {
+        "used": False,
+        "agreeing": None if polished is None else int(polished.agreeing.sum()),
+        "constraints": dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True)),
+    }
+    focal_scale = np.array([start[0], start[1], start[0], start[1]])
+    spread = None if polished is None else polished.jackknife_std()
+    why = _polish_rejected(polished, spread, focal_scale, fallback, agree)
+    if why:
+        logger.info(
+            "camera %d: bundle adjustment of the triplets not kept: %s", camera.camera_id, why
+        )
+        summary["rejected"] = why
+        return estimate, relative_std, agree, summary
+    summary["used"] = True
+    if spread is not None:
+        relative_std = np.maximum(relative_std, spread / focal_scale)
+    logger.info(
+        "camera %d: bundle adjustment of %d agreeing triplets: fx %.2f, fy %.2f, cx %.2f, "
+        "cy %.2f px",
+        camera.camera_id,
+        int(polished.agreeing.sum()),
+        *polished.intrinsics,
+    )
+    return polished.intrinsics, relative_std, int(polished.agreeing.sum()), summary
+
+
+def _polish_rejected(
+    polished: TripletBundleResult | None,
+    spread: np.ndarray | None,
+    focal_scale: np.ndarray,
+    fallback: FallbackSolution,
+    agree: int,
+) -> str | None:
+    """Why the polish is not kept (see :func:`_polished`), or None."""
+    if polished is None:
+        return "it failed"
+    if int(polished.agreeing.sum()) < agree:
+        return (
+            f"{int(polished.agreeing.sum())} triplets agree with it, {agree} with the constraints"
+        )
+    replicates = fallback.solution.jackknife
+    if spread is None or replicates is None:
+        return None
+    estimated = fallback.model.parametrization(np.ones(4), np.ones(4)).matrix.any(axis=1)
+    polish_variance = float(np.sum((spread / focal_scale)[estimated] ** 2))
+    constraint_variance = float(np.sum(np.diag(jackknife_covariance(replicates))[estimated]))
+    if polish_variance > constraint_variance:
+        return (
+            f"its jackknife spread ({np.sqrt(polish_variance):.2%}) exceeds the constraints' "
+            f"({np.sqrt(constraint_variance):.2%})"
+        )
+    return None
 
 
 _SOURCE_WORDS = {"prior": "the prior", "focal-search": "the focal search's estimate"}

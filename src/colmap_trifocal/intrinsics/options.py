@@ -80,6 +80,11 @@ class CalibrationOptions:
     #: (:func:`_restart_point`; msac and msac-opt: ``direct`` has no outlier
     #: defence, so its far-off estimates come from bad tensors, not from the start).
     restart: bool = True
+    #: msac-opt only: polish the estimate by a bundle adjustment of the agreeing
+    #: triplets' tracks with one shared camera (:mod:`.triplet_bundle`), kept when at
+    #: least as many triplets agree with it. Near-planar triplets, whose whitened
+    #: constraints are a poor first-order measure, then count by their likelihood.
+    triplet_bundle: bool = True
 
 
 #: Starting focal lengths, as multiples of the image's larger side (see check_prior).

@@ -88,6 +88,11 @@ class CameraCalibration:
     focal_search: dict | None = None
     #: The cause of undetermined parameters the data shows (:mod:`.diagnosis`), or None.
     diagnosis: str | None = None
+    #: msac-opt's bundle adjustment of the agreeing triplets (:mod:`.triplet_bundle`):
+    #: ``used`` (it replaced the constraint estimate), ``agreeing`` triplets (λ < τ²;
+    #: None when it failed) and the constraint estimate it started from
+    #: (``constraints``: fx, fy, cx, cy in pixels). None when it did not run.
+    triplet_bundle: dict | None = None
     triplets: list[TripletReport] = field(default_factory=list)
     tensors: list[TripletTensor] = field(default_factory=list, repr=False)
     #: The camera as stored in the database (model, size, distortion), for writing.

@@ -48,8 +48,6 @@ where the flag left it at −2.3 %.
 
 from __future__ import annotations
 
-import os
-import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -59,8 +57,9 @@ import numpy as np
 import pycolmap
 from tqdm import tqdm
 
+from ..common.bundle_adjustment import bundle_adjustment_options
 from ..common.errors import CalibrationError
-from ..common.log import logger
+from ..common.log import keep_colmap_quiet, logger
 
 REFINE_CHOICES = ("none", "ba")
 MAPPERS = ("incremental", "global")
@@ -489,48 +488,9 @@ def mapping_options(
 def refine_intrinsics(reconstruction: pycolmap.Reconstruction, distortion: bool = False) -> None:
     """Global bundle adjustment of poses, points, focal lengths and principal points (and
     the distortion parameters with ``distortion``), in place."""
-    options = pycolmap.BundleAdjustmentOptions()
-    options.refine_focal_length = True
-    options.refine_principal_point = True
-    options.refine_extra_params = distortion
-    options.print_summary = False
+    options = bundle_adjustment_options(refine_extra_params=distortion)
     with keep_colmap_quiet():
         pycolmap.bundle_adjustment(reconstruction, options)
-
-
-@contextmanager
-def keep_colmap_quiet() -> Iterator[None]:
-    """Keep COLMAP's log level across a call that resets it.
-
-    Measured with pycolmap 4.2: ``pycolmap.bundle_adjustment`` sets glog's
-    ``minloglevel`` to 0 and prints two INFO lines even when the level was 2. When
-    COLMAP is quiet, stderr (file descriptor 2, where glog writes) is silenced for
-    the call and the level restored afterwards.
-    """
-    level = pycolmap.logging.minloglevel
-    if level < 1:
-        yield
-        return
-    try:
-        with silenced_stderr():
-            yield
-    finally:
-        pycolmap.logging.minloglevel = level
-
-
-@contextmanager
-def silenced_stderr() -> Iterator[None]:
-    """Send file descriptor 2 (where glog, COLMAP's logger, writes) to /dev/null."""
-    sys.stderr.flush()
-    saved = os.dup(2)
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, 2)
-    try:
-        yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-        os.close(devnull)
 
 
 def mean_reprojection_error(reconstruction: pycolmap.Reconstruction) -> float:

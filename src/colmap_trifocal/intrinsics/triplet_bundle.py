@@ -1,0 +1,433 @@
+"""The constraint estimate polished by a calibrated bundle adjustment of its triplets.
+
+Why. The whitened constraint residuals (:mod:`.selfcalibration`) measure a
+tensor's distance from the calibrated tensors of K to *first order* in the
+tensor's noise. For a triplet whose tracks lie close to one plane the projective
+tensor is poorly determined and that linearisation fails: on the synthetic facade
+at 1 % relief (``benchmarks/planar_facade.py``, seed 0) the whitened norm ‖r‖ at
+the true K is 27 and 73 for two triplets (χ(7) gives 1–4), while their
+likelihood-ratio statistic below is 2.6 and 2.3, as χ²(7) predicts. Such
+triplets are either left out as outliers or pull the estimate aside.
+
+What. For each tensor (cameras ``P2``, ``P3`` of its ML projective fit) and a
+camera K:
+
+* **Calibrated cameras**: the essential matrices ``E = [a]ₓ A`` of
+  ``K⁻¹ K0 [A | a]`` (view 1 is ``[I | 0]``), decomposed with OpenCV
+  (:func:`cv2.recoverPose`, cheirality on the tracks); view 3's baseline scale by
+  linear least squares on the tracks triangulated from views 1–2.
+* **Likelihood ratio** ``λ = (C_cal − C_proj) / σ²``: ``C_cal`` is the squared
+  reprojection error (px²) of the triplet's inlier tracks after a bundle adjustment
+  of the three calibrated poses and the points with K fixed (pycolmap),
+  ``C_proj = σ² (3n − 18)`` that of the projective fit (:mod:`..geometry.projective_ba`).
+  At the true K, λ ~ χ²(7), the codimension of calibrated tensors.
+* **Shared-camera bundle adjustment**: the triplets with ``λ < τ²`` (τ the MSAC
+  threshold, so that the same triplets count as agreeing as with ‖r‖ < τ to first
+  order) are adjusted together, one camera shared by all of them, each triplet its
+  own poses and points (first pose fixed; its scale is a free gauge direction that
+  Ceres' damping handles). Two rounds: the agreeing set is chosen again at the
+  first round's K.
+
+The result is the maximum-likelihood K of the agreeing triplets' tracks. Its
+spread is measured by the same delete-a-group-of-images jackknife as the
+constraint solve (:func:`.uncertainty.jackknife_replicates`), each replicate a
+bundle adjustment started from the full solution. Which parameters are estimated
+(free, tied ``fy = fx``, held) follows the constraint solve's model; a model that
+holds one principal-point coordinate but not the other is not expressible with
+pycolmap's cameras, and gets no polish.
+
+The camera is a PINHOLE (``fx, fy, cx, cy``) or, for a tied focal length, a
+SIMPLE_PINHOLE camera in COLMAP's pixel convention (the centre of the top-left
+pixel is (0.5, 0.5)). Keypoints of every triplet are added point by point: pycolmap
+has no batch call for tracks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import pycolmap
+
+from ..common.bundle_adjustment import bundle_adjustment_options
+from ..common.log import keep_colmap_quiet
+from ..geometry.projective_ba import refine_triplet
+from ..geometry.tensor_estimation import TripletTensor
+from ..geometry.trifocal import intrinsics_matrix
+from .parametrization import Model
+from .uncertainty import jackknife_covariance, jackknife_replicates
+
+_CAMERA_ID = 1
+#: Ceres tolerances: the polish should reach the optimum, not COLMAP's early stop.
+_FUNCTION_TOLERANCE = 1e-12
+_GRADIENT_TOLERANCE = 1e-14
+_MAX_ITERATIONS = 200
+#: A jackknife replicate starts at the full solution and moves by about a std:
+#: 1e-8 of relative cost change changes K by under 1e-4 of its std there.
+_REPLICATE_TOLERANCE = 1e-8
+#: Rounds of "choose the agreeing triplets at K, adjust them together".
+ROUNDS = 2
+#: Tracks per triplet at most (evenly spaced among its inliers): as many as the
+#: tensor's own refinement uses (``TensorEstimationOptions.max_refined_tracks``).
+MAX_TRACKS = 500
+#: The projective fit that λ is measured against starts at the tensor's cameras,
+#: already the ML fit of (up to 500 of) these tracks: a few iterations converge.
+_PROJECTIVE_ITERATIONS = 20
+_PROJECTIVE_TOLERANCE = 1e-9
+#: Unknowns of a projective triplet beyond its points (two 3x4 cameras, less gauge).
+_PROJECTIVE_PARAMETERS = 18
+
+
+@dataclass
+class TripletBundleResult:
+    """The polished camera and what it rests on.
+
+    Attributes:
+        intrinsics: (fx, fy, cx, cy), pixels.
+        ratios: (n,) likelihood-ratio statistic λ of every tensor at ``intrinsics``
+            (inf where no calibrated cameras could be formed).
+        agreeing: (n,) bool, ``λ < τ²``.
+        replicates: jackknife intrinsics (g, 4), pixels, or None when too few groups.
+    """
+
+    intrinsics: np.ndarray
+    ratios: np.ndarray
+    agreeing: np.ndarray
+    replicates: np.ndarray | None
+
+    def jackknife_std(self) -> np.ndarray | None:
+        """(4,) jackknife std of (fx, fy, cx, cy) in pixels, or None."""
+        if self.replicates is None:
+            return None
+        return np.sqrt(np.diag(jackknife_covariance(self.replicates)))
+
+
+def pycolmap_camera_setup(model: Model) -> tuple[str, bool, bool] | None:
+    """(COLMAP camera model, refine focal length, refine principal point) of a model.
+
+    None when pycolmap cannot express it (one principal-point coordinate held) or
+    nothing is estimated.
+    """
+    if model.cx != model.cy or model.dimension == 0:
+        return None
+    camera_model = "SIMPLE_PINHOLE" if model.focal == "tied" else "PINHOLE"
+    return camera_model, model.focal != "held", model.cx
+
+
+def calibrated_cameras(
+    tensor: TripletTensor, x: np.ndarray, start: np.ndarray, intrinsics: np.ndarray
+) -> np.ndarray | None:
+    """Calibrated cameras (3, 3, 4) ``[R | t]`` of a tensor's views under K, view 1 ``[I|0]``.
+
+    Args:
+        tensor: its ``P2``, ``P3`` are in coordinates normalised by ``start``.
+        x: the triplet's inlier tracks (3, n, 2) normalised by ``intrinsics``.
+        start: (fx0, fy0, cx0, cy0) of the tensor's normalisation, pixels.
+        intrinsics: (fx, fy, cx, cy) of K, pixels.
+
+    Returns None when OpenCV cannot decompose an essential matrix.
+    """
+    M = np.linalg.solve(intrinsics_matrix(start), intrinsics_matrix(intrinsics))  # K0⁻¹ K
+    M_inverse = np.linalg.inv(M)
+    poses = []
+    for view, P in ((1, tensor.P2), (2, tensor.P3)):
+        A, a = M_inverse @ P[:, :3] @ M, M_inverse @ P[:, 3]
+        essential = np.cross(a, A, axisa=0, axisb=0, axisc=0)  # [a]ₓ A
+        essential = essential / np.linalg.norm(essential)
+        try:
+            count, R, t, _ = cv2.recoverPose(essential, x[0], x[view], np.eye(3))
+        except cv2.error:
+            return None
+        if count == 0:
+            return None
+        poses.append((R, t.ravel()))
+    (R2, t2), (R3, t3) = poses
+    cameras = np.stack([np.eye(3, 4), np.hstack([R2, t2[:, None]]), np.eye(3, 4)])
+    points = triangulate(cameras[:2], x[:2])
+    # View 3's baseline scale s: x3 ∥ R3 X + s t3, least squares over the tracks.
+    rays = np.concatenate([x[2], np.ones((x.shape[1], 1))], axis=1)
+    rotated = np.cross(rays, points @ R3.T)
+    baseline = np.cross(rays, np.broadcast_to(t3, rays.shape))
+    scale = -np.sum(rotated * baseline) / max(float(np.sum(baseline * baseline)), 1e-300)
+    cameras[2] = np.hstack([R3, scale * t3[:, None]])
+    return cameras
+
+
+def triangulate(cameras: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Points (n, 3) from normalised tracks x (v, n, 2) and cameras (v, 3, 4) (linear DLT)."""
+    rows = np.concatenate(
+        [
+            x[..., 0:1] * cameras[:, None, 2] - cameras[:, None, 0],
+            x[..., 1:2] * cameras[:, None, 2] - cameras[:, None, 1],
+        ],
+        axis=0,
+    )  # (2v, n, 4)
+    homogeneous = np.linalg.svd(np.swapaxes(rows, 0, 1))[2][:, -1]
+    w = homogeneous[:, 3:]
+    return homogeneous[:, :3] / np.where(np.abs(w) > 1e-12, w, 1e-12)
+
+
+@dataclass
+class _Observed:
+    """A tensor's tracks for the polish and their projective fit (the λ reference)."""
+
+    index: int  # position among the tensors
+    tensor: TripletTensor
+    pixels: np.ndarray  # (3, n, 2) inlier tracks, pixels
+    projective_cost: float  # C_proj, px²
+    sigma2: float  # σ² = C_proj / (3n − 18), px²
+
+
+def observed_tracks(
+    tensors: list[TripletTensor], tracks: dict[tuple[int, int, int], np.ndarray], start: np.ndarray
+) -> list[_Observed]:
+    """Each tensor's inlier tracks (at most ``MAX_TRACKS``, evenly spaced) and their
+    projective cost, from a projective bundle adjustment warm-started at its cameras.
+
+    The tensor's own noise estimate comes from the tracks its last refinement used,
+    not these, so C_proj is measured on exactly the tracks λ compares.
+    """
+    observed = []
+    for index, tensor in enumerate(tensors):
+        pixels = tracks[tuple(tensor.image_ids)][:, tensor.inliers]
+        n = pixels.shape[1]
+        if n > MAX_TRACKS:
+            pixels = pixels[:, np.linspace(0, n - 1, MAX_TRACKS).round().astype(int)]
+        if pixels.shape[1] <= _PROJECTIVE_PARAMETERS // 3:
+            continue
+        fit = refine_triplet(
+            (pixels - start[2:]) / start[:2],
+            tensor.P2,
+            tensor.P3,
+            start[:2],
+            max_iterations=_PROJECTIVE_ITERATIONS,
+            tolerance=_PROJECTIVE_TOLERANCE,
+        )
+        cost = float(fit.squared_errors.sum())
+        if not (np.isfinite(cost) and fit.sigma > 0):
+            continue
+        observed.append(_Observed(index, tensor, pixels, cost, fit.sigma**2))
+    return observed
+
+
+@dataclass
+class _Triplet:
+    """One triplet inside the shared reconstruction."""
+
+    index: int  # position among the tensors
+    image_ids: tuple[int, int, int]  # the triplet's images in the reconstruction
+    point_ids: np.ndarray  # (n,) its 3D points
+    pixels: np.ndarray  # (3, n, 2) its tracks, pixels
+    projective_cost: float  # C_proj, px²
+    sigma2: float  # σ², px²
+
+
+class _SharedCamera:
+    """A pycolmap reconstruction: one camera, each triplet its own three images and points."""
+
+    def __init__(self, intrinsics: np.ndarray, camera_model: str, width: int, height: int):
+        self.reconstruction = pycolmap.Reconstruction()
+        params = intrinsics if camera_model == "PINHOLE" else [intrinsics[0], *intrinsics[2:]]
+        self.reconstruction.add_camera_with_trivial_rig(
+            pycolmap.Camera(
+                camera_id=_CAMERA_ID,
+                model=camera_model,
+                width=width,
+                height=height,
+                params=[float(v) for v in params],
+            )
+        )
+        self.triplets: list[_Triplet] = []
+
+    def intrinsics(self) -> np.ndarray:
+        camera = self.reconstruction.cameras[_CAMERA_ID]
+        return np.array(
+            [
+                camera.focal_length_x,
+                camera.focal_length_y,
+                camera.principal_point_x,
+                camera.principal_point_y,
+            ]
+        )
+
+    def add(self, observed: _Observed, cameras: np.ndarray) -> None:
+        """Add a triplet's tracks with its calibrated cameras (3, 3, 4)."""
+        pixels = observed.pixels
+        intrinsics = self.intrinsics()
+        normalised = (pixels - intrinsics[2:]) / intrinsics[:2]
+        points = triangulate(cameras, normalised)
+        first = 3 * len(self.triplets) + 1
+        image_ids = (first, first + 1, first + 2)
+        for view, image_id in enumerate(image_ids):
+            image = pycolmap.Image(
+                name=f"{image_id}.png",
+                keypoints=np.ascontiguousarray(pixels[view], dtype=np.float64),
+                camera_id=_CAMERA_ID,
+                image_id=image_id,
+            )
+            pose = pycolmap.Rigid3d(
+                pycolmap.Rotation3d(cameras[view][:, :3]), cameras[view][:, 3].copy()
+            )
+            self.reconstruction.add_image_with_trivial_frame(image, pose)
+        point_ids = np.array(
+            [
+                self.reconstruction.add_point3D(
+                    point, pycolmap.Track([pycolmap.TrackElement(i, k) for i in image_ids])
+                )
+                for k, point in enumerate(points)
+            ]
+        )
+        self.triplets.append(
+            _Triplet(
+                observed.index,
+                image_ids,
+                point_ids,
+                pixels,
+                observed.projective_cost,
+                observed.sigma2,
+            )
+        )
+
+    def adjust(
+        self,
+        which: list[int],
+        refine_focal: bool,
+        refine_principal_point: bool,
+        function_tolerance: float = _FUNCTION_TOLERANCE,
+    ) -> bool:
+        """Bundle-adjust the triplets ``which`` (positions in ``self.triplets``) in place."""
+        config = pycolmap.BundleAdjustmentConfig()
+        for position in which:
+            triplet = self.triplets[position]
+            for image_id in triplet.image_ids:
+                config.add_image(image_id)
+            first = self.reconstruction.images[triplet.image_ids[0]]
+            config.set_constant_rig_from_world_pose(first.frame_id)
+        if not (refine_focal or refine_principal_point):
+            config.set_constant_cam_intrinsics(_CAMERA_ID)
+        options = bundle_adjustment_options(
+            refine_focal,
+            refine_principal_point,
+            function_tolerance=function_tolerance,
+            gradient_tolerance=_GRADIENT_TOLERANCE,
+            max_iterations=_MAX_ITERATIONS,
+            threads=1,
+        )
+        with keep_colmap_quiet():
+            adjuster = pycolmap.create_default_bundle_adjuster(options, config, self.reconstruction)
+            summary = adjuster.solve()
+        return bool(summary.is_solution_usable())
+
+    def ratios(self) -> np.ndarray:
+        """λ of every triplet at the current cameras (inf where a point is behind a camera)."""
+        K = intrinsics_matrix(self.intrinsics())
+        ratios = np.empty(len(self.triplets))
+        for position, triplet in enumerate(self.triplets):
+            points = np.array([self.reconstruction.points3D[int(p)].xyz for p in triplet.point_ids])
+            cost = 0.0
+            for view, image_id in enumerate(triplet.image_ids):
+                image = self.reconstruction.images[image_id]
+                pose = np.asarray(image.cam_from_world().matrix())
+                local = points @ pose[:, :3].T + pose[:, 3]
+                if np.any(local[:, 2] <= 0):
+                    cost = np.inf
+                    break
+                projected = local @ K.T
+                pixels = projected[:, :2] / projected[:, 2:]
+                cost += float(np.sum((pixels - triplet.pixels[view]) ** 2))
+            ratios[position] = (cost - triplet.projective_cost) / triplet.sigma2
+        return ratios
+
+
+def polish_intrinsics(
+    tensors: list[TripletTensor],
+    tracks: dict[tuple[int, int, int], np.ndarray],
+    start: np.ndarray,
+    estimate: np.ndarray,
+    model: Model,
+    size: tuple[int, int],
+    tau: float,
+) -> TripletBundleResult | None:
+    """The ML intrinsics of the agreeing triplets, from the constraint estimate.
+
+    Args:
+        tensors: the tensors, normalised by ``start``.
+        tracks: per triplet (image ids), all its tracks (3, n, 2) in pixels; each
+            tensor's ``inliers`` picks from them.
+        start: (fx0, fy0, cx0, cy0) of the tensors' normalisation, pixels.
+        estimate: the constraint solve's (fx, fy, cx, cy), held values included.
+        model: what is estimated (see :func:`pycolmap_camera_setup`).
+        size: (width, height) of the images, pixels.
+        tau: the MSAC threshold; triplets with ``λ < τ²`` agree.
+
+    Returns None when the model is not expressible, no triplet agrees, or Ceres fails.
+    """
+    setup = pycolmap_camera_setup(model)
+    if setup is None or not tensors:
+        return None
+    camera_model, refine_focal, refine_principal_point = setup
+    intrinsics = np.asarray(estimate, dtype=float).copy()
+    if camera_model == "SIMPLE_PINHOLE":
+        intrinsics[1] = intrinsics[0]
+    limit = tau**2
+    observed = observed_tracks(tensors, tracks, start)
+    for _ in range(ROUNDS):
+        shared = _shared_camera(observed, start, intrinsics, camera_model, size)
+        if shared is None or not shared.adjust(list(range(len(shared.triplets))), False, False):
+            return None
+        before = shared.ratios()
+        agreeing = [p for p, ratio in enumerate(before) if ratio < limit]
+        if not agreeing or not shared.adjust(agreeing, refine_focal, refine_principal_point):
+            return None
+        intrinsics = shared.intrinsics()
+    # λ at the final K: exact for the adjusted triplets; the others keep their λ at
+    # the last round's start (they disagreed there, and K moved by a fraction of a std).
+    after = shared.ratios()
+    adjusted = set(agreeing)
+    ratios = np.full(len(tensors), np.inf)
+    for position, triplet in enumerate(shared.triplets):
+        ratios[triplet.index] = after[position] if position in adjusted else before[position]
+    final = shared
+    positions = agreeing
+    groups_of = [tensors[final.triplets[p].index].image_ids for p in positions]
+
+    def replicate(keep: np.ndarray) -> np.ndarray | None:
+        copy = _copy(final)
+        kept = [p for p, k in zip(positions, keep, strict=True) if k]
+        if not copy.adjust(kept, refine_focal, refine_principal_point, _REPLICATE_TOLERANCE):
+            return None
+        return copy.intrinsics()
+
+    replicates = jackknife_replicates(groups_of, replicate)
+    return TripletBundleResult(
+        intrinsics=intrinsics,
+        ratios=ratios,
+        agreeing=ratios < limit,
+        replicates=replicates,
+    )
+
+
+def _shared_camera(
+    observed: list[_Observed],
+    start: np.ndarray,
+    intrinsics: np.ndarray,
+    camera_model: str,
+    size: tuple[int, int],
+) -> _SharedCamera | None:
+    """Every triplet whose calibrated cameras can be formed at K, in one reconstruction."""
+    shared = _SharedCamera(intrinsics, camera_model, *size)
+    for triplet in observed:
+        normalised = (triplet.pixels - intrinsics[2:]) / intrinsics[:2]
+        cameras = calibrated_cameras(triplet.tensor, normalised, start, intrinsics)
+        if cameras is not None and np.all(np.isfinite(cameras)):
+            shared.add(triplet, cameras)
+    return shared if shared.triplets else None
+
+
+def _copy(shared: _SharedCamera) -> _SharedCamera:
+    """An independent copy (the reconstruction is copied, the layout shared)."""
+    copy = _SharedCamera.__new__(_SharedCamera)
+    copy.reconstruction = pycolmap.Reconstruction(shared.reconstruction)
+    copy.triplets = shared.triplets
+    return copy
