@@ -17,9 +17,14 @@ PROJECT_ROOT = Path(__file__).resolve().parents[1]
 
 def strecha_root() -> Path:
     """The ``strecha`` folder, or skip (fail under CI=true) when it is absent."""
-    root = default_datasets_root(PROJECT_ROOT) / "strecha"
+    return shared_dataset("strecha")
+
+
+def shared_dataset(relative: str) -> Path:
+    """A folder of ``../shared/datasets``, or skip (fail under CI=true) when it is absent."""
+    root = default_datasets_root(PROJECT_ROOT) / relative
     if not root.is_dir():
-        message = f"Strecha scenes not found at {root} (set COLMAP_TRIFOCAL_DATASETS)"
+        message = f"{relative} not found at {root} (set COLMAP_TRIFOCAL_DATASETS)"
         if os.environ.get("CI", "").lower() == "true":
             pytest.fail(message)
         pytest.skip(message)

@@ -7,6 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import shared_dataset
 
 from colmap_trifocal.common.errors import CalibrationError
 from colmap_trifocal.datasets import DATASET_KINDS, DatasetScene, GroundTruthView, read_scene
@@ -284,6 +285,32 @@ def test_kitti_camera_0_and_options(tmp_path: Path) -> None:
     other = write(tmp_path / "my_poses.txt", KITTI_POSES)
     scene = read_scene("kitti", sequence, camera=0, poses=other)
     np.testing.assert_allclose(scene.views[1].centre, [0.5, -0.2, 3.0])
+
+
+def test_kitti_grayscale_only_sequence(tmp_path: Path) -> None:
+    """A sequence with only image_0 and a calib.txt of P0 and P1 (as the shared drive)."""
+    sequence = tmp_path / "sequences" / "02"
+    write(sequence / "calib.txt", "".join(KITTI_CALIB.splitlines(keepends=True)[:2]))
+    for frame in (0, 1):
+        write_image(sequence / "image_0" / f"{frame:06d}.png", 40, 10)
+    scene = read_scene("kitti", sequence)
+    assert scene.image_dir == sequence / "image_0"
+    np.testing.assert_allclose(scene.views[0].intrinsics, [718.856, 718.856, 607.6928, 185.7157])
+    calib = sequence / "calib.txt"
+    write_image(sequence / "image_2" / "000000.png", 40, 10)  # images without their P2 line
+    assert read_error("kitti", sequence) == (
+        f"cannot read KITTI calibration file {calib}: no P2 line"
+    )
+
+
+@pytest.mark.real_data
+def test_shared_kitti_drive_is_read() -> None:
+    """../shared/datasets/kitti: 51 grayscale frames, KITTI's K and a pose for each."""
+    scene = read_scene("kitti", shared_dataset("kitti/sequences/seq2"))
+    assert len(scene.views) == 51
+    np.testing.assert_allclose(scene.views[0].intrinsics, [718.856, 718.856, 607.6928, 185.7157])
+    assert (scene.views[0].width, scene.views[0].height) == (1241, 376)
+    assert all(view.rotation is not None for view in scene.views)
 
 
 def test_kitti_malformed(tmp_path: Path) -> None:

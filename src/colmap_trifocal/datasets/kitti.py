@@ -46,7 +46,11 @@ def read_kitti_scene(
         camera = 2 if (sequence / "image_2").is_dir() else 0
     if camera not in (0, 1, 2, 3):
         raise CalibrationError(f"KITTI camera must be 0, 1, 2 or 3, not {camera}")
-    projection = read_calib_file(sequence / "calib.txt")[f"P{camera}"]
+    matrices = read_calib_file(sequence / "calib.txt")
+    if f"P{camera}" not in matrices:
+        calib = sequence / "calib.txt"
+        raise CalibrationError(f"cannot read KITTI calibration file {calib}: no P{camera} line")
+    projection = matrices[f"P{camera}"]
     image_dir = sequence / f"image_{camera}"
     names = list_images(image_dir)
     if not names:
@@ -84,16 +88,18 @@ def read_kitti_scene(
 
 
 def read_calib_file(path: Path) -> dict[str, np.ndarray]:
-    """Key (``P0`` ... ``P3``, ``Tr``) -> 3x4 matrix of a KITTI ``calib.txt``."""
+    """Key (``P0`` ... ``P3``, ``Tr``) -> 3x4 matrix of a KITTI ``calib.txt``.
+
+    Only the lines present are returned (a grayscale-only sequence has just P0 and P1).
+    """
     require_file(path, "KITTI calibration file")
     with parsing(path, "KITTI calibration file"):
         matrices = {
             row[0].rstrip(":"): np.array(row[1:], dtype=float).reshape(3, 4)
             for row in text_rows(path)
         }
-        for key in ("P0", "P1", "P2", "P3"):
-            if key not in matrices:
-                raise ValueError(f"no {key} line")
+        if not any(key.startswith("P") for key in matrices):
+            raise ValueError("no projection matrix (P0 ... P3)")
     return matrices
 
 
