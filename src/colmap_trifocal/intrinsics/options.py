@@ -82,7 +82,8 @@ class CalibrationOptions:
     restart: bool = True
     #: msac-opt only: polish the estimate by a bundle adjustment of the agreeing
     #: triplets' tracks with one shared camera (:mod:`.triplet_bundle`), kept when at
-    #: least as many triplets agree with it. Near-planar triplets, whose whitened
+    #: least as many triplets agree with it and its image jackknife is no wider than
+    #: the constraint solve's. Near-planar triplets, whose whitened
     #: constraints are a poor first-order measure, then count by their likelihood.
     triplet_bundle: bool = True
 
