@@ -1,6 +1,6 @@
 """Small helpers shared by the speed benchmarks (public API and pycolmap only).
 
-Kept outside ``src/`` on purpose: the benchmarks must keep working while the core
+Kept outside the package on purpose: the benchmarks must keep working while the core
 changes, so they use nothing but ``colmap_trifocal.calibrate_database``,
 ``CalibrationOptions``, ``colmap_trifocal.database.features.build_database`` and pycolmap.
 """

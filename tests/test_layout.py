@@ -54,7 +54,7 @@ def test_stages_import_no_later_stage() -> None:
 
 
 def test_tree_lists_the_stages_in_flow_order() -> None:
-    """``ls src/colmap_trifocal`` (alphabetical) shows the stages in the order data flows."""
+    """``ls colmap_trifocal`` (alphabetical) shows the stages in the order data flows."""
     listed = sorted(p.name for p in PACKAGE.iterdir() if p.is_dir() and p.name in STAGES)
     assert listed == list(STAGES)
 
