@@ -1,18 +1,90 @@
-"""Shared fixtures: real Strecha databases (built once per session) and synthetic ones."""
+"""Shared fixtures: real COLMAP databases (built once, cached), synthetic ones, the CLI in process.
+
+Markers (``pyproject.toml``):
+
+* ``real_data``: the test reads ``../shared/datasets`` (or ``$COLMAP_TRIFOCAL_DATASETS``).
+  Every other test runs with ``COLMAP_TRIFOCAL_DATASETS`` pointing at a folder that does
+  not exist (set before its fixtures, so notebooks and subprocesses inherit it), and
+  :func:`shared_dataset` fails in a test without the marker: ``-m "not real_data"``
+  reads no real data.
+* ``slow``: end-to-end runs and sweeps (more than about 10 s on 2 cores).
+
+Databases built from images (SIFT, matching: about a minute per Strecha scene on 2
+cores) come from :class:`DatabaseCache`: one build per key, shared by the xdist workers
+of a run and kept for the next runs in pytest's cache folder (``.pytest_cache``,
+``pytest --cache-clear`` empties it). Cached databases are read-only for the tests: a
+test that writes copies first (:meth:`DatabaseCache.copy`), and every fetch checks the
+cached file's sha256 against the one recorded when it was built.
+"""
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
+import json
+import logging
 import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pycolmap
 import pytest
 
+from colmap_trifocal.database import features as features_module
 from colmap_trifocal.database.features import build_database
-from colmap_trifocal.datasets.strecha import default_datasets_root, scene_images
+from colmap_trifocal.datasets.strecha import DATASETS_ENV, default_datasets_root, scene_images
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
+#: Where the datasets are for ``real_data`` tests (read before any test changes the variable).
+DATASETS_ROOT = default_datasets_root(PROJECT_ROOT)
+#: ``$COLMAP_TRIFOCAL_DATASETS`` during a test without the ``real_data`` marker.
+NO_REAL_DATA = Path("/nonexistent/colmap-trifocal-tests/real-data-needs-the-real_data-marker")
+
+_current_item: pytest.Item | None = None
+
+
+def in_ci() -> bool:
+    return os.environ.get("CI", "").lower() == "true"
+
+
+def skip_or_fail(message: str) -> None:
+    """Skip with ``message``; under ``CI=true`` fail with it (CI must have everything)."""
+    if in_ci():
+        pytest.fail(message)
+    pytest.skip(message)
+
+
+# --------------------------------------------------------------------------- real data
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
+    """Outside ``real_data`` tests the datasets variable names a missing folder.
+
+    Set around the whole test (its fixtures too, whatever their scope), restored after.
+    """
+    global _current_item
+    _current_item = item
+    real = item.get_closest_marker("real_data") is not None
+    saved = os.environ.get(DATASETS_ENV)
+    if not real:
+        os.environ[DATASETS_ENV] = str(NO_REAL_DATA)
+    try:
+        yield
+    finally:
+        _current_item = None
+        if saved is None:
+            os.environ.pop(DATASETS_ENV, None)
+        else:
+            os.environ[DATASETS_ENV] = saved
 
 
 def strecha_root() -> Path:
@@ -21,32 +93,241 @@ def strecha_root() -> Path:
 
 
 def shared_dataset(relative: str) -> Path:
-    """A folder of ``../shared/datasets``, or skip (fail under CI=true) when it is absent."""
-    root = default_datasets_root(PROJECT_ROOT) / relative
+    """A folder of ``../shared/datasets``, or skip (fail under CI=true) when it is absent.
+
+    Only for tests marked ``real_data`` (anything else fails: mark the test).
+    """
+    item = _current_item
+    if item is not None and item.get_closest_marker("real_data") is None:
+        pytest.fail(f"{item.nodeid} reads {relative} from the shared datasets: mark it real_data")
+    root = DATASETS_ROOT / relative
     if not root.is_dir():
-        message = f"{relative} not found at {root} (set COLMAP_TRIFOCAL_DATASETS)"
-        if os.environ.get("CI", "").lower() == "true":
-            pytest.fail(message)
-        pytest.skip(message)
+        skip_or_fail(f"{relative} not found at {root} (set {DATASETS_ENV})")
     return root
 
 
-@pytest.fixture(scope="session")
-def strecha_database(tmp_path_factory: pytest.TempPathFactory):
-    """Factory: scene name -> (database path, scene folder), SIFT at 1600 px, exhaustive.
+# --------------------------------------------------------------------------- database cache
 
-    Built once per session (about a minute per scene on 2 cores).
+#: Part of every key: bump it to rebuild every cached database.
+CACHE_FORMAT = 1
+
+
+def _sha256_file(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+@dataclass(frozen=True)
+class DatabaseCache:
+    """COLMAP databases built by :func:`build_database`, one per key, shared and kept.
+
+    The key hashes the images (name, size and sha256 of each file: content, not mtime,
+    so a test that writes the same images again finds its database), the build
+    options, the pycolmap version and the source of ``database/features.py`` (the code
+    that builds). One process builds while the others wait on an ``fcntl.flock`` of
+    the key's lock file; the build goes to a temporary folder renamed into place when
+    complete, so a killed build never leaves a partial entry.
     """
-    built: dict[str, Path] = {}
+
+    root: Path
+
+    def key(self, image_dir: Path, names: list[str], options: dict) -> str:
+        images = [
+            [name, (image_dir / name).stat().st_size, _sha256_file(image_dir / name)]
+            for name in names
+        ]
+        recipe = {
+            "format": CACHE_FORMAT,
+            "pycolmap": pycolmap.__version__,
+            "builder": _sha256_file(Path(features_module.__file__)),
+            "options": options,
+            "images": images,
+        }
+        return hashlib.sha256(json.dumps(recipe, sort_keys=True).encode()).hexdigest()[:24]
+
+    def get(self, image_dir: Path, names: list[str] | None = None, **options: object) -> Path:
+        """The cached database of ``names`` in ``image_dir`` (default: every file there),
+        built with ``build_database(image_dir, db, names, **options)`` on first use.
+
+        The path is shared: read it, never write it (:meth:`copy` first).
+        """
+        image_dir = Path(image_dir)
+        if names is None:
+            names = sorted(p.name for p in image_dir.iterdir() if p.is_file())
+        key = self.key(image_dir, names, options)
+        entry = self.root / key
+        self.root.mkdir(parents=True, exist_ok=True)
+        with open(self.root / f"{key}.lock", "a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file is closed
+            if not (entry / "meta.json").is_file():
+                self._build(entry, image_dir, names, options)
+            meta = json.loads((entry / "meta.json").read_text())
+            database = entry / "database.db"
+            if _sha256_file(database) != meta["sha256"]:
+                shutil.rmtree(entry)
+                pytest.fail(
+                    f"the cached database {database} was changed after it was built: a test "
+                    "wrote to it (copy it first: DatabaseCache.copy); removed, rebuilt next time"
+                )
+        return database
+
+    def _build(self, entry: Path, image_dir: Path, names: list[str], options: dict) -> None:
+        for stale in self.root.glob(f"{entry.name}.building-*"):  # a build that was killed
+            shutil.rmtree(stale, ignore_errors=True)
+        staging = Path(tempfile.mkdtemp(prefix=f"{entry.name}.building-", dir=self.root))
+        try:
+            database = build_database(image_dir, staging / "database.db", names, **options)
+            meta = {
+                "image_dir": str(image_dir),
+                "images": names,
+                "options": options,
+                "sha256": _sha256_file(database),
+            }
+            (staging / "meta.json").write_text(json.dumps(meta, indent=1))
+            staging.chmod(0o755)  # mkdtemp made it 0700
+            os.rename(staging, entry)
+        except BaseException:
+            shutil.rmtree(staging, ignore_errors=True)
+            raise
+
+    @staticmethod
+    def copy(database: Path, target: Path) -> Path:
+        """A private copy of a cached database (for a test that writes)."""
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(database, target)
+        return target
+
+
+def cache_root(config: pytest.Config, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """pytest's cache folder (``.pytest_cache/d/...``, kept between runs); without the
+    cache plugin (``-p no:cacheprovider``) the folder all xdist workers of this run share."""
+    cache = getattr(config, "cache", None)
+    if cache is not None:
+        return cache.mkdir("colmap_trifocal_databases")
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent  # .../pytest-N/popen-gwK: the parent is the run's
+    return base / "colmap_trifocal_databases"
+
+
+@pytest.fixture(scope="session")
+def database_cache(
+    pytestconfig: pytest.Config, tmp_path_factory: pytest.TempPathFactory
+) -> DatabaseCache:
+    return DatabaseCache(cache_root(pytestconfig, tmp_path_factory))
+
+
+@pytest.fixture(scope="session")
+def strecha_database(
+    database_cache: DatabaseCache,
+) -> Callable[[str], tuple[Path, Path]]:
+    """Factory: scene name -> (database path, scene folder), SIFT at 1600 px, exhaustive,
+    one PINHOLE camera. Cached (:class:`DatabaseCache`): read it, copy it to write."""
 
     def get(scene: str) -> tuple[Path, Path]:
         folder = strecha_root() / scene
-        if scene not in built:
-            database = tmp_path_factory.mktemp(scene) / "database.db"
-            built[scene] = build_database(folder / "images", database, scene_images(folder))
-        return built[scene], folder
+        return database_cache.get(folder / "images", scene_images(folder)), folder
 
     return get
+
+
+# --------------------------------------------------------------------------- the CLI in process
+
+
+@dataclass
+class CliResult:
+    """What ``colmap-trifocal ARGS`` did: exit status, stdout and stderr (C output too)."""
+
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+def run_cli(*args: object, preexec_fn: Callable[[], None] | None = None) -> CliResult:
+    """``python -m colmap_trifocal.cli ARGS`` as a subprocess (where the process is the point:
+    signals, resource limits, pipes, another process's view)."""
+    done = subprocess.run(
+        [sys.executable, "-m", "colmap_trifocal.cli", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        preexec_fn=preexec_fn,
+    )
+    return CliResult(done.returncode, done.stdout, done.stderr)
+
+
+@contextmanager
+def restored_process_state() -> Iterator[None]:
+    """Undo what :func:`colmap_trifocal.cli.main` changes in the process: the handlers of
+    SIGINT/SIGTERM/SIGHUP and the signal mask (it restores them itself; this also covers a
+    run that raised), the package logger (``-v`` adds a handler) and COLMAP's log level."""
+    signums = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    handlers = {signum: signal.getsignal(signum) for signum in signums}
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, set())
+    logger = logging.getLogger("colmap_trifocal")
+    log_state = (list(logger.handlers), logger.level, logger.propagate)
+    minloglevel = pycolmap.logging.minloglevel
+    try:
+        yield
+    finally:
+        for signum, handler in handlers.items():
+            signal.signal(signum, handler)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        logger.handlers[:], logger.level, logger.propagate = log_state
+        pycolmap.logging.minloglevel = minloglevel
+
+
+@pytest.fixture
+def run_main(capfd: pytest.CaptureFixture) -> Callable[..., CliResult]:
+    """``colmap-trifocal ARGS`` in this process: :func:`colmap_trifocal.cli.main`, with the
+    file descriptors captured (glog's C++ output too) and the process state restored.
+
+    ``SystemExit`` (argparse's usage errors) gives its code, as the console script does.
+    For what only a real process shows (signals, the entry point, resource limits, another
+    process holding a lock) use a subprocess.
+    """
+    from colmap_trifocal import cli
+
+    def run(*args: object) -> CliResult:
+        capfd.readouterr()  # what earlier steps of the test printed is not this run's
+        with restored_process_state():
+            try:
+                status = cli.main([str(a) for a in args])
+            except SystemExit as exc:
+                code = exc.code
+                status = code if isinstance(code, int) else (0 if code is None else 1)
+        out, err = capfd.readouterr()
+        return CliResult(status, out, err)
+
+    return run
+
+
+def assert_one_error_line(result: CliResult, fragment: str, status: int = 2) -> None:
+    """Exit ``status``, stderr exactly one line ``error: ...`` containing ``fragment``."""
+    assert "Traceback" not in result.stderr, result.stderr
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith("error: "), lines[0]
+    assert fragment in lines[0], lines[0]
+    assert result.returncode == status, result.stderr
+
+
+# --------------------------------------------------------------------------- rendering
+
+
+def require_rendering() -> None:
+    """Skip (fail under CI=true) where Open3D cannot be imported or cannot render offscreen."""
+    from colmap_trifocal.reconstruction.visualize import offscreen_problem
+
+    problem = offscreen_problem()
+    if problem is not None:
+        skip_or_fail(f"offscreen rendering impossible here: {problem}")
+
+
+# --------------------------------------------------------------------------- synthetic data
 
 
 def synthesize(

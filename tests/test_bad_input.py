@@ -1,12 +1,20 @@
-"""Bad input through the real command line: one table, one ``error:`` line each, data untouched.
+"""Bad input through the command line: one table, one ``error:`` line each, data untouched.
 
 Every row builds its input (with pycolmap where it is a COLMAP database or model), runs
-the command line as a subprocess (``calibrate PATH ARGS`` unless the row gives another
-command: ``run``, ``show``, ``evaluate``, ``synthetic``) and checks: the exit status (2),
-exactly one stderr line ``error: ...`` containing the row's fragment, no traceback, every
-file below the row's folder byte-identical (sha256) and none added or removed (no
-``.bak``, no ``-wal``/``-shm`` left behind), and no ``run`` workspace created. The table
-had 31 rows before issue 15 and 70 after (``pytest --collect-only -k "test_bad_input["``).
+the command line (``calibrate PATH ARGS`` unless the row gives another command: ``run``,
+``show``, ``evaluate``, ``synthetic``) and checks: the exit status (2), exactly one
+stderr line ``error: ...`` containing the row's fragment, no traceback, every file below
+the row's folder byte-identical (sha256) and none added or removed (no ``.bak``, no
+``-wal``/``-shm`` left behind), and no ``run`` workspace created. The table had 31 rows
+before issue 15, 70 after, and 80 with the rows that were separate tests in
+``test_cli.py`` and ``test_evaluation.py`` (``pytest --collect-only -k "test_bad_input["``).
+
+The rows run ``colmap_trifocal.cli.main`` in this process (``conftest.run_main``: file
+descriptors captured, so pycolmap's C++ log counts as stderr; signal handlers, logging
+and COLMAP's log level restored after each row). A row whose point is the process runs a
+subprocess: a file-size limit (``setrlimit``) would bind the test runner itself. A lock
+is held by another process: pycolmap has its own SQLite, and POSIX locks taken by
+Python's ``sqlite3`` in this process would not bind it.
 
 Ctrl-C (SIGINT), SIGTERM and SIGHUP during ``--write`` are tested twice: by fault
 injection in this process (a KeyboardInterrupt or a real signal at each step of the write
@@ -34,9 +42,8 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 import pytest
-from conftest import synthesize
+from conftest import CliResult, assert_one_error_line, run_cli, synthesize
 
-from colmap_trifocal import cli
 from colmap_trifocal.database import snapshot as database_module
 
 PARAMS = [1100.0, 1250.0, 530.0, 370.0]
@@ -48,19 +55,6 @@ WIDTH, HEIGHT = 1024, 768
 Config = pycolmap.TwoViewGeometryConfiguration
 
 # --------------------------------------------------------------------------- helpers
-
-
-def run_cli(
-    *args: object, preexec_fn: Callable[[], None] | None = None
-) -> subprocess.CompletedProcess:
-    """``python -m colmap_trifocal.cli ARGS`` with captured output."""
-    return subprocess.run(
-        [sys.executable, "-m", "colmap_trifocal.cli", *map(str, args)],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        preexec_fn=preexec_fn,
-    )
 
 
 def sha256(path: Path) -> str:
@@ -121,33 +115,42 @@ def all_pairs(num_images: int) -> list[tuple[int, int]]:
     return [(a, b) for a in range(1, num_images + 1) for b in range(a + 1, num_images + 1)]
 
 
+_LOCK_HOLDER = """
+import sqlite3, sys
+con = sqlite3.connect(sys.argv[1], isolation_level=None)
+if sys.argv[3]:
+    con.execute("PRAGMA journal_mode=" + sys.argv[3])
+con.execute(sys.argv[2])
+print("locked", flush=True)
+sys.stdin.readline()
+con.execute("ROLLBACK")
+con.close()
+"""
+
+
 @contextmanager
 def holding_lock(path: Path, statement: str, journal_mode: str | None = None) -> Iterator[None]:
-    """Another connection holding ``statement``'s lock (BEGIN IMMEDIATE / EXCLUSIVE)."""
-    con = sqlite3.connect(path, isolation_level=None)
+    """Another process holding ``statement``'s lock (BEGIN IMMEDIATE / EXCLUSIVE) until the
+    block ends (then it rolls back and exits)."""
+    holder = subprocess.Popen(
+        [sys.executable, "-c", _LOCK_HOLDER, str(path), statement, journal_mode or ""],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
-        if journal_mode is not None:
-            con.execute(f"PRAGMA journal_mode={journal_mode}")
-        con.execute(statement)
+        assert holder.stdout is not None and holder.stdout.readline() == "locked\n"
         yield
-        con.execute("ROLLBACK")
     finally:
-        con.close()
+        assert holder.stdin is not None
+        holder.stdin.close()
+        assert holder.wait(timeout=60) == 0
 
 
 def limit_file_size() -> None:
     """In the child: files may not grow beyond 64 KiB (writes fail with EFBIG, like a full disk)."""
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     resource.setrlimit(resource.RLIMIT_FSIZE, (65536, 65536))
-
-
-def assert_one_error_line(result: subprocess.CompletedProcess, fragment: str, status: int) -> None:
-    assert "Traceback" not in result.stderr, result.stderr
-    lines = result.stderr.splitlines()
-    assert len(lines) == 1, result.stderr
-    assert lines[0].startswith("error: "), lines[0]
-    assert fragment in lines[0], lines[0]
-    assert result.returncode == status, result.stderr
 
 
 # --------------------------------------------------------------------------- the table
@@ -171,6 +174,7 @@ class Case:
     status: int = 2
     #: Run while another connection holds a lock: (SQL statement, journal mode or None).
     lock: tuple[str, str | None] | None = None
+    #: Run in a child process after this (in the child, before the command line).
     preexec_fn: Callable[[], None] | None = field(default=None, repr=False)
     #: Make the database read-only (chmod 444) before running.
     read_only: bool = False
@@ -282,10 +286,12 @@ def _random_inconsistent_matches(folder: Path, _good: Path) -> Path:
     return path
 
 
-def _synthetic(frames: int, model: str = "PINHOLE", params: list[float] | None = None):
+def _synthetic(
+    frames: int = 6, model: str = "PINHOLE", params: list[float] | None = None, points: int = 400
+):
     def make(folder: Path, _good: Path) -> Path:
         path = folder / "database.db"
-        synthesize(path, model, params or PARAMS, frames=frames)
+        synthesize(path, model, params or PARAMS, frames=frames, points=points)
         return path
 
     return make
@@ -463,6 +469,10 @@ CASES: dict[str, Case] = {
     "outlier matches, no consistent tensor": Case(
         _random_consistent_matches, "no triplet gave a consistent trifocal tensor"
     ),
+    # from test_cli.py: a good scene of 30 points, too few three-view tracks
+    "30 points, no triplet": Case(
+        _synthetic(points=30), "no image triplet with at least 40 three-view tracks"
+    ),
     "single image": Case(_synthetic(1), "database has only 1 image, at least 3"),
     "two images": Case(_synthetic(2), "database has only 2 images, at least 3"),
     "identical images": Case(_identical_images, "3 are duplicates (the matched keypoints coincide"),
@@ -475,6 +485,7 @@ CASES: dict[str, Case] = {
         _copy, "expected 4 values FX,FY,CX,CY, got 5", ("--prior", "1,2,3,4,5")
     ),
     "prior not numbers": Case(_copy, "expected four numbers", ("--prior", "a,b,c,d")),
+    "unknown --method": Case(_copy, "--method: invalid choice: 'magic'", ("--method", "magic")),
     "read-only database with --write": Case(
         _copy, "cannot write to read-only database", ("--write",), read_only=True
     ),
@@ -581,6 +592,14 @@ CASES: dict[str, Case] = {
         argv=lambda f, p, w: ("run", f, w, "--camera-model", "FOO"),
     ),
     "run --seed -1": Case(_copy, "seed must be", argv=_run("--seed", "-1")),
+    "run --png into a missing folder": Case(
+        _copy,
+        "cannot write --png",
+        argv=lambda f, p, w: ("run", f, w, "--png", f / "missing" / "x.png"),
+    ),
+    "show: missing model": Case(
+        _copy, "model folder not found", argv=lambda f, p, w: ("show", f / "nope")
+    ),
     "show: truncated images.bin": Case(
         _models({"images": 3000}),
         "truncated COLMAP model file",
@@ -595,6 +614,37 @@ CASES: dict[str, Case] = {
         _models(images=False),
         ": image folder",
         argv=lambda f, p, w: ("evaluate", "colmap", p, "--runs", "1"),
+    ),
+    # from test_evaluation.py (the --output folder is the workspace: it must stay absent)
+    "evaluate: missing dataset folder": Case(
+        _copy,
+        "does not exist",
+        argv=lambda f, p, w: ("evaluate", "strecha", f / "nope", "--output", w),
+    ),
+    "evaluate --perturbation a-b": Case(
+        _copy,
+        "malformed --perturbation",
+        argv=lambda f, p, w: ("evaluate", "strecha", f, "--perturbation", "a-b", "--output", w),
+    ),
+    "evaluate --methods magic": Case(
+        _copy,
+        "unknown method",
+        argv=lambda f, p, w: ("evaluate", "strecha", f, "--methods", "magic", "--output", w),
+    ),
+    "evaluate --images 2": Case(
+        _copy,
+        "at least 3 images",
+        argv=lambda f, p, w: ("evaluate", "strecha", f, "--images", "2", "--output", w),
+    ),
+    "synthetic --noise x": Case(
+        _copy,
+        "malformed --noise",
+        argv=lambda f, p, w: ("synthetic", "--noise", "x", "--output", w),
+    ),
+    "synthetic --runs 0": Case(
+        _copy,
+        "--runs must be at least 1",
+        argv=lambda f, p, w: ("synthetic", "--runs", "0", "--output", w),
     ),
     "synthetic --seed -1": Case(
         _copy, "seed must be", argv=lambda f, p, w: ("synthetic", "--seed", "-1")
@@ -645,7 +695,9 @@ CASES: dict[str, Case] = {
 
 
 @pytest.mark.parametrize("name", list(CASES))
-def test_bad_input(name: str, good_database: Path, tmp_path: Path) -> None:
+def test_bad_input(
+    name: str, good_database: Path, tmp_path: Path, run_main: Callable[..., CliResult]
+) -> None:
     case = CASES[name]
     folder = tmp_path / "data"
     folder.mkdir()
@@ -661,12 +713,14 @@ def test_bad_input(name: str, good_database: Path, tmp_path: Path) -> None:
             str(a).format(path=path, folder=folder) if "{" in str(a) else a
             for a in case.argv(folder, path, workspace)
         )
-    if case.lock is not None:
+    if case.preexec_fn is not None:
+        result = run_cli(*args, preexec_fn=case.preexec_fn)
+    elif case.lock is not None:
         statement, journal_mode = case.lock
         with holding_lock(path, statement, journal_mode):
-            result = run_cli(*args, preexec_fn=case.preexec_fn)
+            result = run_main(*args)
     else:
-        result = run_cli(*args, preexec_fn=case.preexec_fn)
+        result = run_main(*args)
     assert_one_error_line(result, case.fragment, case.status)
     assert tree(folder) == before  # every file byte-identical, none added or removed
     assert not workspace.exists()  # refused before the workspace was made
@@ -675,14 +729,16 @@ def test_bad_input(name: str, good_database: Path, tmp_path: Path) -> None:
     assert result.stdout == "" or "--json" in args or "--write" in args
 
 
-def test_jittered_copies_determine_nothing_and_write_nothing(tmp_path: Path) -> None:
+def test_jittered_copies_determine_nothing_and_write_nothing(
+    tmp_path: Path, run_main: Callable[..., CliResult]
+) -> None:
     """Three copies of one image with 1.5 px jitter pass the duplicate check (about 2.5 px
     apart) but have no parallax: every parameter is reported undetermined, the prior is
     returned, and ``--write`` leaves the database as it was (no backup either)."""
     path = _jittered_copies(tmp_path, tmp_path)
     before, files = sha256(path), listing(tmp_path)
     out = tmp_path / "result.json"
-    result = run_cli("calibrate", path, "--prior", PRIOR, "--write", "--json", out)
+    result = run_main("calibrate", path, "--prior", PRIOR, "--write", "--json", out)
     assert result.returncode == 0, result.stderr
     (warning,) = result.stderr.strip().splitlines()
     assert warning.startswith("warning: camera 1: fx (") and "too similar images" in warning
@@ -772,13 +828,14 @@ SIGNAL_ENDINGS = {
 }
 
 
-def _main(capsys: pytest.CaptureFixture, *args: object) -> tuple[int, list[str]]:
-    status = cli.main([str(a) for a in args])
-    return status, capsys.readouterr().err.splitlines()
+def _main(run_main: Callable[..., CliResult], *args: object) -> tuple[int, list[str]]:
+    """Exit status and stderr lines of the command line, in this process."""
+    result = run_main(*args)
+    return result.returncode, result.stderr.splitlines()
 
 
 def test_interrupt_between_update_and_commit(
-    database_copy: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+    database_copy: Path, monkeypatch: pytest.MonkeyPatch, run_main: Callable[..., CliResult]
 ) -> None:
     """KeyboardInterrupt right after the UPDATE, before COMMIT: nothing written, no backup."""
     before = sha256(database_copy)
@@ -789,7 +846,7 @@ def test_interrupt_between_update_and_commit(
         "_update_params",
         _after(original, lambda: calls.append(1) or _raise_interrupt()),
     )
-    status, lines = _main(capsys, "calibrate", database_copy, *QUICK)
+    status, lines = _main(run_main, "calibrate", database_copy, *QUICK)
     assert calls == [1]  # the UPDATE did run
     assert status == 130
     assert lines == ["error: interrupted"]
@@ -818,7 +875,7 @@ def test_interrupt_before_commit_leaves_nothing(
     inject: str,
     database_copy: Path,
     monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture,
+    run_main: Callable[..., CliResult],
 ) -> None:
     """Interrupted at any step before COMMIT: database byte-identical, no backup left."""
     before = sha256(database_copy)
@@ -828,19 +885,19 @@ def test_interrupt_before_commit_leaves_nothing(
     )
     wrap = _after if when == "after" else _before
     monkeypatch.setattr(database_module, function, wrap(getattr(database_module, function), action))
-    status, lines = _main(capsys, "calibrate", database_copy, *QUICK)
+    status, lines = _main(run_main, "calibrate", database_copy, *QUICK)
     assert (status, lines) == (expected_status, [line])
     assert sha256(database_copy) == before
     assert listing(database_copy.parent) == ["database.db"]
 
 
 def test_interrupt_during_commit_is_held_until_written(
-    database_copy: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+    database_copy: Path, monkeypatch: pytest.MonkeyPatch, run_main: Callable[..., CliResult]
 ) -> None:
     """A SIGINT arriving as COMMIT starts: the commit completes, the backup is kept, 130."""
     original_bytes = database_copy.read_bytes()
     monkeypatch.setattr(database_module, "_commit", _before(database_module._commit, _send_sigint))
-    status, lines = _main(capsys, "calibrate", database_copy, *QUICK)
+    status, lines = _main(run_main, "calibrate", database_copy, *QUICK)
     assert status == 130
     assert len(lines) == 1 and lines[0].startswith("error: interrupted (after the new intrinsics")
     assert "backup: " in lines[0]
@@ -855,12 +912,12 @@ def test_signal_during_commit_is_held_until_written(
     how: str,
     database_copy: Path,
     monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture,
+    run_main: Callable[..., CliResult],
 ) -> None:
     """Any of the three signals as COMMIT starts: the commit completes, the backup is kept."""
     send, line, expected_status = SIGNAL_ENDINGS[how]
     monkeypatch.setattr(database_module, "_commit", _before(database_module._commit, send))
-    status, lines = _main(capsys, "calibrate", database_copy, *QUICK)
+    status, lines = _main(run_main, "calibrate", database_copy, *QUICK)
     assert status == expected_status
     assert len(lines) == 1 and lines[0].startswith(f"{line} (after the new intrinsics"), lines
     np.testing.assert_allclose(camera_params(database_copy), PARAMS, rtol=1e-5)
@@ -868,7 +925,7 @@ def test_signal_during_commit_is_held_until_written(
 
 
 def test_backup_is_copied_under_a_temporary_name(
-    database_copy: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+    database_copy: Path, monkeypatch: pytest.MonkeyPatch, run_main: Callable[..., CliResult]
 ) -> None:
     """While the copy is made no ``.bak`` exists: a process killed meanwhile (even by
     SIGKILL) never leaves a partial ``.bak`` that a later ``--write`` would keep as
@@ -883,26 +940,28 @@ def test_backup_is_copied_under_a_temporary_name(
         seen.append(listing(path.parent))
 
     monkeypatch.setattr(database_module, "_copy_database", watched)
-    status, _ = _main(capsys, "calibrate", database_copy, *QUICK)
+    status, _ = _main(run_main, "calibrate", database_copy, *QUICK)
     assert status == 0
     assert seen and not any("database.db.bak" in names for names in seen), seen
     assert listing(database_copy.parent) == ["database.db", "database.db.bak"]
     assert database_copy.with_name("database.db.bak").read_bytes() == original
 
 
-def test_a_second_write_keeps_the_first_backup(database_copy: Path) -> None:
+def test_a_second_write_keeps_the_first_backup(
+    database_copy: Path, run_main: Callable[..., CliResult]
+) -> None:
     """An existing ``.bak`` is never overwritten: the next backup is ``.bak1``."""
     original = database_copy.read_bytes()
-    assert run_cli("calibrate", database_copy, *QUICK).returncode == 0
+    assert run_main("calibrate", database_copy, *QUICK).returncode == 0
     first = database_copy.read_bytes()
-    assert run_cli("calibrate", database_copy, *QUICK).returncode == 0
+    assert run_main("calibrate", database_copy, *QUICK).returncode == 0
     assert listing(database_copy.parent) == ["database.db", "database.db.bak", "database.db.bak1"]
     assert database_copy.with_name("database.db.bak").read_bytes() == original
     assert database_copy.with_name("database.db.bak1").read_bytes() == first
 
 
 def test_no_space_for_the_backup(
-    database_copy: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+    database_copy: Path, monkeypatch: pytest.MonkeyPatch, run_main: Callable[..., CliResult]
 ) -> None:
     """The backup copy fails (ENOSPC): one line, nothing written, the partial .bak removed."""
     before = sha256(database_copy)
@@ -912,7 +971,7 @@ def test_no_space_for_the_backup(
         raise OSError(28, os.strerror(28), str(target))
 
     monkeypatch.setattr(database_module, "_copy_database", full_disk)
-    status, lines = _main(capsys, "calibrate", database_copy, *QUICK)
+    status, lines = _main(run_main, "calibrate", database_copy, *QUICK)
     assert status == 2
     assert lines == [
         f"error: cannot back up the database, nothing written: {database_copy} "
@@ -1053,10 +1112,12 @@ def test_json_to_stdout_redirected_to_a_file(database_copy: Path, tmp_path: Path
     assert len(_table_and_json(out.read_text(), result.stderr)) == 1
 
 
-def test_repeated_camera_id_is_calibrated_once(database_copy: Path, tmp_path: Path) -> None:
+def test_repeated_camera_id_is_calibrated_once(
+    database_copy: Path, tmp_path: Path, run_main: Callable[..., CliResult]
+) -> None:
     """``--camera-id 1 --camera-id 1``: one result, not two (issue 15, item 8)."""
     out = tmp_path / "result.json"
-    result = run_cli(
+    result = run_main(
         "calibrate",
         database_copy,
         *QUICK_READ,
@@ -1109,7 +1170,7 @@ def test_run_copies_what_is_still_in_the_wal(good_database: Path, tmp_path: Path
 def test_numerical_warnings_go_to_the_log_not_stderr(
     database_copy: Path,
     monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture,
+    run_main: Callable[..., CliResult],
     caplog: pytest.LogCaptureFixture,
 ) -> None:
     """A RuntimeWarning raised during a run (here a real float overflow in numpy, injected
@@ -1125,6 +1186,6 @@ def test_numerical_warnings_go_to_the_log_not_stderr(
         calibrate_module, "calibrate_groups", _after(calibrate_module.calibrate_groups, overflow)
     )
     with caplog.at_level("INFO", logger="colmap_trifocal"):
-        status, lines = _main(capsys, "calibrate", database_copy, *QUICK_READ)
+        status, lines = _main(run_main, "calibrate", database_copy, *QUICK_READ)
     assert (status, lines) == (0, [])
     assert any("RuntimeWarning: overflow" in r.getMessage() for r in caplog.records)

@@ -1,32 +1,29 @@
-"""The command line as a user runs it: exit codes, one-line errors, JSON, --write."""
+"""The command line as a user runs it: exit codes, JSON, --write, the demo, the renderings.
+
+Refused inputs are rows of the table in ``test_bad_input.py``. Here: the installed
+``colmap-trifocal`` entry point (a real process), the rest in this process
+(``conftest.run_main``).
+"""
 
 from __future__ import annotations
 
 import hashlib
 import json
-import os
-import sqlite3
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pycolmap
 import pytest
-from conftest import synthesize
+from conftest import CliResult, require_rendering, run_cli, synthesize
 
 PARAMS = [1100.0, 1250.0, 530.0, 370.0]
 PRIOR = "1140,1210,545,360"
-
-
-def run(*args: object) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "colmap_trifocal.cli", *map(str, args)],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+#: The console script pip installed next to this interpreter (``[project.scripts]``).
+ENTRY_POINT = Path(sys.executable).parent / "colmap-trifocal"
 
 
 def _sha256(path: Path) -> str:
@@ -40,19 +37,19 @@ def database(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-def assert_one_line_error(result: subprocess.CompletedProcess, fragment: str) -> None:
-    assert result.returncode == 2, result.stderr
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1, result.stderr
-    assert lines[0].startswith("error: ") and fragment in lines[0], lines[0]
-    assert "Traceback" not in result.stderr
-
-
-def test_calibrate_writes_json(database: Path, tmp_path: Path) -> None:
+def test_installed_entry_point_writes_json(database: Path, tmp_path: Path) -> None:
+    """``colmap-trifocal calibrate`` through the installed console script."""
+    assert ENTRY_POINT.is_file(), f"{ENTRY_POINT} missing: pip install -e '.[test]'"
     before = _sha256(database)
     out = tmp_path / "result.json"
-    result = run("calibrate", database, "--prior", PRIOR, "--json", out, "--seed", "3")
+    result = subprocess.run(
+        [ENTRY_POINT, "calibrate", database, "--prior", PRIOR, "--json", out, "--seed", "3"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 0, result.stderr
+    assert result.stderr == ""
     (entry,) = json.loads(out.read_text())
     assert set(entry) >= {
         "camera_id",
@@ -75,83 +72,30 @@ def test_calibrate_writes_json(database: Path, tmp_path: Path) -> None:
     assert _sha256(database) == before
 
 
-def test_write_flag(database: Path, tmp_path: Path) -> None:
+def test_write_flag(database: Path, tmp_path: Path, run_main: Callable[..., CliResult]) -> None:
     copy = tmp_path / "db.db"
     copy.write_bytes(database.read_bytes())
-    result = run("calibrate", copy, "--prior", PRIOR, "--write")
+    result = run_main("calibrate", copy, "--prior", PRIOR, "--write")
     assert result.returncode == 0, result.stderr
+    assert "wrote 1 camera(s)" in result.stdout
     assert (tmp_path / "db.db.bak").read_bytes() == database.read_bytes()
     with pycolmap.Database.open(str(copy)) as db:
         np.testing.assert_allclose(db.read_all_cameras()[0].params, PARAMS, rtol=1e-5)
 
 
-def test_write_refused_on_read_only_database(database: Path, tmp_path: Path) -> None:
-    copy = tmp_path / "db.db"
-    copy.write_bytes(database.read_bytes())
-    copy.chmod(0o444)
-    before = _sha256(copy)
-    assert_one_line_error(run("calibrate", copy, "--prior", PRIOR, "--write"), "read-only")
-    assert _sha256(copy) == before
+# --------------------------------------------------------------------------- the demo
 
 
-def test_missing_database(tmp_path: Path) -> None:
-    missing = tmp_path / "nope.db"
-    assert_one_line_error(run("calibrate", missing), "not found")
-    assert not missing.exists()
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, CliResult]:
+    """``colmap-trifocal demo --keep DIR``, run once (a process, as a user starts it)."""
+    folder = tmp_path_factory.mktemp("demo")
+    return folder / "demo", run_cli("demo", "--keep", folder)
 
 
-def test_not_a_database(tmp_path: Path) -> None:
-    text = tmp_path / "notes.db"
-    text.write_text("hello\n")
-    assert_one_line_error(run("calibrate", text), "not an SQLite database")
-    assert text.read_text() == "hello\n"
-
-
-def test_fewer_than_three_images(tmp_path: Path) -> None:
-    path = tmp_path / "two.db"
-    synthesize(path, "PINHOLE", PARAMS, frames=2)
-    assert_one_line_error(run("calibrate", path), "only 2 images, at least 3")
-
-
-def test_no_verified_matches(database: Path, tmp_path: Path) -> None:
-    copy = tmp_path / "db.db"
-    copy.write_bytes(database.read_bytes())
-    with sqlite3.connect(copy) as con:
-        con.execute("DELETE FROM two_view_geometries")
-    assert_one_line_error(run("calibrate", copy), "verified matches")
-
-
-def test_no_triplet(tmp_path: Path) -> None:
-    path = tmp_path / "sparse.db"
-    synthesize(path, "PINHOLE", PARAMS, points=30)
-    assert_one_line_error(run("calibrate", path), "no image triplet")
-
-
-@pytest.mark.parametrize(
-    ("prior", "fragment"),
-    [
-        ("1100,1250,530", "expected 4 values"),
-        ("1100,1250,530,370,1", "expected 4 values"),
-        ("a,b,c,d", "expected four numbers"),
-        ("nan,1250,530,370", "finite"),
-        ("0,1250,530,370", "positive"),
-    ],
-)
-def test_malformed_prior(database: Path, prior: str, fragment: str) -> None:
-    assert_one_line_error(run("calibrate", database, "--prior", prior), fragment)
-
-
-def test_unknown_method(database: Path) -> None:
-    assert_one_line_error(run("calibrate", database, "--method", "magic"), "invalid choice")
-
-
-def test_json_into_missing_folder(database: Path, tmp_path: Path) -> None:
-    out = tmp_path / "missing" / "r.json"
-    assert_one_line_error(run("calibrate", database, "--json", out), "does not exist")
-
-
-def test_demo_runs_the_pipeline(tmp_path: Path) -> None:
-    result = run("demo", "--keep", tmp_path)
+@pytest.mark.slow
+def test_demo_runs_the_pipeline(demo: tuple[Path, CliResult]) -> None:
+    workspace, result = demo
     assert result.returncode == 0, result.stderr
     lines = result.stdout.strip().splitlines()
     trifocal = float(lines[-1].split(":")[1].split("%")[0])
@@ -159,44 +103,47 @@ def test_demo_runs_the_pipeline(tmp_path: Path) -> None:
     # From a 5 % prior with 0.5 px noise and 20 % wrong matches.
     assert trifocal < 0.5 and refined < 0.5
     assert "registered 10 images" in result.stdout
-    assert (tmp_path / "demo" / "sparse" / "0" / "cameras.bin").is_file()
-    report = json.loads((tmp_path / "demo" / "report.json").read_text())
+    assert (workspace / "sparse" / "0" / "cameras.bin").is_file()
+    report = json.loads((workspace / "report.json").read_text())
     assert report["num_registered_images"] == 10
     assert set(report["seconds"]) == {"features", "calibrate", "mapping", "refine"}
     # COLMAP's own INFO lines only with -vv (pycolmap's BA resets glog's level).
     assert not [line for line in result.stderr.splitlines() if line.startswith("I20")]
 
 
-def test_show_renders_png(tmp_path: Path) -> None:
-    assert run("demo", "--keep", tmp_path).returncode == 0
+@pytest.mark.slow
+def test_show_renders_png(
+    demo: tuple[Path, CliResult], tmp_path: Path, run_main: Callable[..., CliResult]
+) -> None:
+    require_rendering()
+    workspace, made = demo
+    assert made.returncode == 0, made.stderr
     png = tmp_path / "view.png"
-    result = run("show", tmp_path / "demo" / "sparse" / "0", "--png", png)
-    if result.returncode != 0 and "offscreen" in result.stderr and os.environ.get("CI") != "true":
-        pytest.skip(result.stderr.strip())
+    result = run_main("show", workspace / "sparse" / "0", "--png", png)
     assert result.returncode == 0, result.stderr
     image = cv2.imread(str(png))
     assert image is not None and image.shape[2] == 3
     assert (image < 250).any(axis=2).mean() > 0.002  # not a blank white background
 
 
-def test_run_renders_png(tmp_path: Path) -> None:
+@pytest.mark.slow
+def test_run_renders_png(
+    demo: tuple[Path, CliResult], tmp_path: Path, run_main: Callable[..., CliResult]
+) -> None:
     """``run ... --png OUT`` (DESIGN.md): the pipeline, then the model rendered offscreen."""
-    assert run("demo", "--keep", tmp_path).returncode == 0
+    require_rendering()
+    workspace, made = demo
+    assert made.returncode == 0, made.stderr
+    database = workspace / "database.db"
+    before = _sha256(database)
     png = tmp_path / "run.png"
-    workspace = tmp_path / "ws"
-    result = run(
-        "run", tmp_path / "no-images", workspace, "--database", tmp_path / "demo" / "database.db",
+    target = tmp_path / "ws"
+    result = run_main(
+        "run", tmp_path / "no-images", target, "--database", database,
         "--refine", "none", "--png", png,
     )  # fmt: skip
-    if result.returncode != 0 and "offscreen" in result.stderr and os.environ.get("CI") != "true":
-        pytest.skip(result.stderr.strip())
     assert result.returncode == 0, result.stderr
-    assert f"wrote {png}" in result.stdout and (workspace / "report.json").is_file()
+    assert f"wrote {png}" in result.stdout and (target / "report.json").is_file()
     image = cv2.imread(str(png))
     assert image is not None and (image < 250).any(axis=2).mean() > 0.002
-    refused = run("run", tmp_path, tmp_path / "ws2", "--png", tmp_path / "missing" / "x.png")
-    assert_one_line_error(refused, "cannot write --png")
-
-
-def test_show_missing_model(tmp_path: Path) -> None:
-    assert_one_line_error(run("show", tmp_path / "nope"), "nope")
+    assert _sha256(database) == before  # the input was copied, not changed

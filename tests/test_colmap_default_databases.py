@@ -5,21 +5,23 @@
   ``--write`` updates every camera.
 * A mixed folder: two physical cameras of different sizes, images interleaved by
   name, and a third camera with only 2 images (skipped, exit 0).
+
+The databases come from the shared cache (``conftest.DatabaseCache``); the test that
+writes works on a copy.
 """
 
 from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
-from conftest import strecha_root
+from conftest import CliResult, DatabaseCache, strecha_root
 
-from colmap_trifocal.cli import main
-from colmap_trifocal.database.features import build_database
 from colmap_trifocal.database.shared_cameras import merge_group_cameras
 from colmap_trifocal.database.snapshot import read_database
 from colmap_trifocal.datasets.strecha import ground_truth_intrinsics, scene_images
@@ -32,19 +34,25 @@ def _error(values: dict | np.ndarray, truth: np.ndarray) -> float:
     return float(np.mean(np.abs(np.asarray(values) / truth - 1)))
 
 
+pytestmark = [pytest.mark.real_data, pytest.mark.slow]
+
+
 @pytest.mark.parametrize(("scene", "num_images"), [("fountain-P11", 11), ("Herz-Jesus-P8", 8)])
 def test_colmap_default_database(
-    scene: str, num_images: int, tmp_path: Path, capsys: pytest.CaptureFixture
+    scene: str,
+    num_images: int,
+    tmp_path: Path,
+    database_cache: DatabaseCache,
+    run_main: Callable[..., CliResult],
 ) -> None:
     folder = strecha_root() / scene
-    database = tmp_path / "database.db"
-    build_database(
+    cached = database_cache.get(
         folder / "images",
-        database,
         scene_images(folder),
         camera_model="SIMPLE_RADIAL",
         camera_mode="auto",  # what `colmap feature_extractor` does by default
     )
+    database = DatabaseCache.copy(cached, tmp_path / "database.db")  # written below
     cameras = read_database(database).cameras
     assert len(cameras) == num_images
     assert len({c.params.tobytes() for c in cameras.values()}) == 1
@@ -53,15 +61,16 @@ def test_colmap_default_database(
     merge_group_cameras(single, [sorted(cameras)])
 
     report = tmp_path / "out.json"
-    assert main(["calibrate", str(database), "--json", str(report), "--write"]) == 0
-    assert f"wrote {num_images} camera(s)" in capsys.readouterr().out
-    (result,) = json.loads(report.read_text())
-    assert result["camera_ids"] == sorted(cameras)
+    result = run_main("calibrate", database, "--json", report, "--write")
+    assert result.returncode == 0, result.stderr
+    assert f"wrote {num_images} camera(s)" in result.stdout
+    (entry,) = json.loads(report.read_text())
+    assert entry["camera_ids"] == sorted(cameras)
     truth = ground_truth_intrinsics(folder)
-    assert _error(result, truth) <= 0.005
+    assert _error(entry, truth) <= 0.005
     # The same accuracy as the single-camera database: the same numbers.
     (reference,) = calibrate_database(single, CalibrationOptions())
-    assert [result[k] for k in ("fx", "fy", "cx", "cy")] == reference.intrinsics.tolist()
+    assert [entry[k] for k in ("fx", "fy", "cx", "cy")] == reference.intrinsics.tolist()
     for camera in read_database(database).cameras.values():
         np.testing.assert_allclose(camera.intrinsics, reference.intrinsics, rtol=1e-12)
         assert camera.params[3] == 0.0  # distortion kept
@@ -100,18 +109,18 @@ def _mixed_folder(target: Path) -> tuple[dict[str, np.ndarray], list[str]]:
 
 
 def test_mixed_folder_two_cameras_and_a_skipped_pair(
-    tmp_path: Path, capsys: pytest.CaptureFixture
+    tmp_path: Path, database_cache: DatabaseCache, run_main: Callable[..., CliResult]
 ) -> None:
     images = tmp_path / "images"
     truth, pair = _mixed_folder(images)
-    database = tmp_path / "database.db"
-    build_database(images, database, max_image_size=1000, camera_mode="auto")
+    # The same images every run (OpenCV writes them alike): the cache key finds them.
+    database = database_cache.get(images, max_image_size=1000, camera_mode="auto")
     contents = read_database(database)
     assert len(contents.cameras) == 12  # one per image, as COLMAP's default
     report = tmp_path / "out.json"
-    code = main(["calibrate", str(database), "--json", str(report)])
-    err = capsys.readouterr().err
-    assert code == 0
+    result = run_main("calibrate", database, "--json", report)
+    err = result.stderr
+    assert result.returncode == 0, err
     entries = json.loads(report.read_text())
     calibrated = [e for e in entries if "skipped" not in e]
     (skipped,) = [e for e in entries if "skipped" in e]
