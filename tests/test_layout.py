@@ -3,7 +3,13 @@
 from __future__ import annotations
 
 import ast
+import importlib.metadata
+import re
+import subprocess
+import sys
 from pathlib import Path
+
+import pytest
 
 import colmap_trifocal
 
@@ -53,10 +59,50 @@ def test_stages_import_no_later_stage() -> None:
     assert offences == []
 
 
+def _stage_imports() -> dict[str, set[str]]:
+    """Each stage: the other stages its modules import."""
+    return {
+        sub: {
+            imported
+            for path in (PACKAGE / sub).rglob("*.py")
+            for imported in _imported_subpackages(path)
+            if imported in STAGES and imported != sub
+        }
+        for sub in STAGES
+    }
+
+
+def _listed_subpackages(text: str) -> list[str]:
+    """The sub-packages a document names (``name/``), in the order it names them first."""
+    names = re.findall(r"(?:^|[`| ])([a-z_]+)/", text, flags=re.MULTILINE)
+    known = (*STAGES, *SUPPORT)
+    return list(dict.fromkeys(n for n in names if n in known))
+
+
 def test_tree_lists_the_stages_in_flow_order() -> None:
-    """``ls colmap_trifocal`` (alphabetical) shows the stages in the order data flows."""
-    listed = sorted(p.name for p in PACKAGE.iterdir() if p.is_dir() and p.name in STAGES)
-    assert listed == list(STAGES)
+    """STAGES is the package: its order is the one the imports give and the one the
+    README and CONTRIBUTING show, and ``ls colmap_trifocal`` (alphabetical) lists it."""
+    on_disk = {p.name for p in PACKAGE.iterdir() if (p / "__init__.py").is_file()}
+    assert on_disk == {*STAGES, *SUPPORT}, "a sub-package missing from STAGES/SUPPORT or gone"
+    # Depth in the import graph (common 0, a stage importing only common 1, ...): the
+    # flow order sorts the stages by it (ties alphabetically, as ls shows them).
+    imports = _stage_imports()
+
+    def depth_of(sub: str, seen: tuple[str, ...] = ()) -> int:
+        assert sub not in seen, f"import cycle: {' -> '.join((*seen, sub))}"
+        return 1 + max((depth_of(i, (*seen, sub)) for i in imports[sub]), default=-1)
+
+    depth = {sub: depth_of(sub) for sub in STAGES}
+    assert sorted(STAGES, key=lambda s: (depth[s], s)) == list(STAGES), depth
+    assert all(imports[sub] for sub in STAGES[1:]), "a stage that takes nothing from earlier ones"
+    assert sorted(STAGES) == list(STAGES)  # `ls` lists them in flow order
+    readme = (PACKAGE.parent / "README.md").read_text()
+    table = readme[readme.index("The package is laid out by stage") :]
+    table = table[: table.index("\n\n", table.index("| stage |"))]
+    assert _listed_subpackages(table) == [*STAGES, *SUPPORT]
+    contributing = (PACKAGE.parent / "CONTRIBUTING.md").read_text()
+    layout = contributing[contributing.index("## Layout") : contributing.index("## Conventions")]
+    assert _listed_subpackages(layout) == [*STAGES, *SUPPORT]
 
 
 def test_every_subpackage_says_what_it_takes_and_gives() -> None:
@@ -65,15 +111,53 @@ def test_every_subpackage_says_what_it_takes_and_gives() -> None:
         assert doc, f"{sub}/__init__.py has no docstring"
 
 
-def test_public_api_imports_from_the_top_level() -> None:
-    from colmap_trifocal import (  # noqa: F401
-        METHODS,
-        CalibrationError,
-        CalibrationOptions,
-        CameraCalibration,
-        calibrate_contents,
-        calibrate_contents_methods,
-        calibrate_database,
-    )
+#: The public API (``colmap_trifocal.__all__``), as CONTRIBUTING.md describes it.
+PUBLIC_API = {
+    "METHODS",
+    "CalibrationError",
+    "CalibrationOptions",
+    "CameraCalibration",
+    "GroupCalibration",
+    "SkippedGroup",
+    "__version__",
+    "calibrate_contents",
+    "calibrate_contents_methods",
+    "calibrate_database",
+    "calibrate_groups",
+}
 
-    assert "msac-opt" in METHODS
+
+def test_public_api_imports_from_the_top_level(tmp_path: Path) -> None:
+    """``__all__`` is the documented API; each name is the object of its stage; a user
+    error raises CalibrationError; importing the package loads no heavy module."""
+    from colmap_trifocal.common import errors
+    from colmap_trifocal.intrinsics import calibrate
+
+    assert set(colmap_trifocal.__all__) == PUBLIC_API
+    for name in PUBLIC_API - {"__version__", "CalibrationError"}:
+        assert getattr(colmap_trifocal, name) is getattr(calibrate, name), name
+    assert colmap_trifocal.CalibrationError is errors.CalibrationError
+    assert issubclass(colmap_trifocal.CalibrationError, Exception)
+    assert colmap_trifocal.__version__ == importlib.metadata.version("colmap-trifocal")
+    contributing = (PACKAGE.parent / "CONTRIBUTING.md").read_text()
+    start = contributing.index("The public API is what")
+    sentence = contributing[start : contributing.index("…)", start)]
+    documented = set(re.findall(r"`(\w+)`", sentence))
+    assert documented >= {"calibrate_database", "CalibrationOptions", "CalibrationError"}
+    assert documented <= PUBLIC_API
+
+    assert colmap_trifocal.METHODS[0] == colmap_trifocal.CalibrationOptions().method
+    assert set(colmap_trifocal.METHODS) >= {"msac-opt", "msac", "direct", "fundamental"}
+    missing = tmp_path / "missing.db"
+    with pytest.raises(colmap_trifocal.CalibrationError, match="database not found"):
+        colmap_trifocal.calibrate_database(missing)
+    assert not missing.exists()
+    with pytest.raises(colmap_trifocal.CalibrationError, match="unknown method"):
+        colmap_trifocal.calibrate_database(missing, colmap_trifocal.CalibrationOptions("magic"))
+
+    # PEP 562: the pipeline (numpy, pycolmap, ...) loads on first use, not on import.
+    probe = "import sys, colmap_trifocal; print(sorted({'numpy', 'pycolmap'} & set(sys.modules)))"
+    loaded = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, check=True, timeout=60
+    )
+    assert loaded.stdout.strip() == "[]"
