@@ -115,16 +115,6 @@ def test_write_stores_estimate_with_backup(tmp_path: Path) -> None:
     np.testing.assert_allclose(stored.params[4:], params[4:])  # distortion untouched
 
 
-def test_seed_reproducible(tmp_path: Path) -> None:
-    path = tmp_path / "database.db"
-    synthesize(path, "PINHOLE", MODELS["PINHOLE"])
-    truth = intrinsics_of(MODELS["PINHOLE"], "PINHOLE")
-    options = CalibrationOptions(prior=_prior(truth, False), seed=7)
-    first = calibrate_database(path, options)[0]
-    second = calibrate_database(path, options)[0]
-    assert first.intrinsics.tobytes() == second.intrinsics.tobytes()
-
-
 def test_no_triplet_with_enough_tracks(tmp_path: Path) -> None:
     path = tmp_path / "database.db"
     synthesize(path, "PINHOLE", MODELS["PINHOLE"], points=30)
