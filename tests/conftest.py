@@ -33,6 +33,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 import pycolmap
@@ -316,6 +317,17 @@ def assert_one_error_line(result: CliResult, fragment: str, status: int = 2) -> 
 
 
 # --------------------------------------------------------------------------- rendering
+
+
+def require_open3d() -> ModuleType:
+    """The open3d module; skip (fail under CI=true) where it cannot be imported (its import
+    needs ``libusb-1.0-0``). Import it only through this, inside the tests that need it."""
+    try:
+        import open3d
+    except (ImportError, OSError) as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        skip_or_fail(f"open3d cannot be imported here: {reason}")
+    return open3d
 
 
 def require_rendering() -> None:
