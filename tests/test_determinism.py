@@ -44,6 +44,7 @@ def _cli_json(database: Path, out: Path, seed: int) -> list[dict]:
     entries = json.loads(out.read_text())
     for entry in entries:
         entry.pop("seconds")
+        entry.pop("stage_seconds")
     return entries
 
 

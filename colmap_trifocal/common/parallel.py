@@ -1,16 +1,24 @@
-"""Order-preserving map over worker processes, with a progress bar."""
+"""Order-preserving map over worker threads, with a progress bar; BLAS kept single-threaded.
+
+The calibration's parallel stages (the focal search, the tensors) spend their time in
+OpenCV and in numpy's array operations, which release the GIL, so threads use every
+core without forking: nothing is pickled, no process starts, and no child is forked
+from a process in which pycolmap has already started threads (such children can
+deadlock). The evaluation's many independent calibrations use processes instead
+(:mod:`..evaluation.runner`).
+"""
 
 from __future__ import annotations
 
-import multiprocessing
 import os
-import signal
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from typing import Any
 
+import cv2
+from threadpoolctl import threadpool_limits
 from tqdm import tqdm
-
-from .errors import interrupts_deferred
 
 MAX_WORKERS = 8
 
@@ -24,15 +32,23 @@ def default_workers() -> int:
     return max(1, min(cores, MAX_WORKERS))
 
 
-def _quiet_worker() -> None:
-    """Ctrl-C, a hangup and SIGTERM are the parent's to handle (they reach a terminal job's
-    whole process group). A worker must not die of them: an idle worker holds the task
-    queue's lock while it waits, and a worker that dies holding it deadlocks the pool
-    (measured: a SIGTERM to the group during the tensors hung ``Pool.terminate()`` in a
-    semaphore acquire). The parent ends the pool with close() + join() instead."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGHUP, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+@contextmanager
+def single_threaded_libraries() -> Iterator[None]:
+    """BLAS, OpenMP and OpenCV each limited to one thread inside the block.
+
+    The calibration multiplies many small matrices (24x24 camera blocks, 3x3 point
+    blocks) and runs many small RANSACs; a library's own threads only add
+    synchronisation to each call, and beside the worker threads of :func:`map_jobs`
+    they oversubscribe the cores. Parallelism comes from :func:`map_jobs` instead.
+    OpenCV's setting is restored afterwards.
+    """
+    opencv_threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        with threadpool_limits(limits=1):
+            yield
+    finally:
+        cv2.setNumThreads(opencv_threads)
 
 
 def map_jobs(
@@ -42,36 +58,30 @@ def map_jobs(
     description: str = "",
     progress: bool = False,
 ) -> list[Any]:
-    """``[function(job) for job in jobs]``, in order, over ``workers`` processes.
+    """``[function(job) for job in jobs]``, in order, over ``workers`` threads.
 
-    ``function`` must be a module-level function (it is pickled). One worker, or
-    a single job, runs in this process. Workers are forked where the platform
-    allows it (no re-import), spawned elsewhere.
+    One worker, or a single job, runs in the calling thread. On an exception (Ctrl-C
+    included) the jobs not yet started are cancelled and the running ones finish
+    (each is one triplet: milliseconds), then the exception propagates.
     """
     workers = default_workers() if workers is None else max(1, workers)
     bar = tqdm(total=len(jobs), desc=description, disable=not progress)
-    if workers == 1 or len(jobs) <= 1:
-        results = []
-        for job in jobs:
-            results.append(function(job))
-            bar.update()
-        bar.close()
-        return results
-    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
-    pool = None
     try:
-        with interrupts_deferred():  # Ctrl-C inside fork() is lost in an at-fork hook
-            pool = multiprocessing.get_context(method).Pool(min(workers, len(jobs)), _quiet_worker)
-        results = []
-        for result in pool.imap(function, jobs, chunksize=1):
-            results.append(result)
-            bar.update()
+        if workers == 1 or len(jobs) <= 1:
+            results = []
+            for job in jobs:
+                results.append(function(job))
+                bar.update()
+            return results
+        executor = ThreadPoolExecutor(min(workers, len(jobs)))
+        try:
+            futures = [executor.submit(function, job) for job in jobs]
+            results = []
+            for future in futures:
+                results.append(future.result())
+                bar.update()
+            return results
+        finally:
+            executor.shutdown(wait=True, cancel_futures=True)
     finally:
-        # close + join lets the workers finish the jobs already queued and exit
-        # normally, also after an interrupt (which costs that wait): terminate() would
-        # send them SIGTERM, which they ignore (see _quiet_worker).
-        if pool is not None:
-            pool.close()
-            pool.join()
         bar.close()
-    return results

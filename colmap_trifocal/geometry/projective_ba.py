@@ -138,17 +138,21 @@ def refine_triplet(
     relative_decrease = np.inf
     for iteration in range(1, max_iterations + 1):  # noqa: B007 - reported below
         U, V, W, g_c, g_p, _ = _linearise(x, P2, P3, points, scale)
+        # W as (24, 3n): the point blocks side by side, so that the reduced camera
+        # matrix and the right-hand side are single matrix products.
+        W_flat = np.ascontiguousarray(W.transpose(1, 0, 2)).reshape(24, -1)
+        W_stack = W_flat.reshape(24, -1, 3)
+        V_diagonal = np.einsum("nii->ni", V)[:, :, None] * np.eye(3)
         improved = False
         while damping < 1e12:
-            V_d = V + damping * np.einsum("nii->ni", V)[:, :, None] * np.eye(3)
-            V_inv = np.linalg.inv(V_d + 1e-12 * np.eye(3))
-            WV = W @ V_inv
-            S = U + damping * np.diag(np.diag(U)) - _contract_points(WV, W)
-            b = g_c - WV.reshape(-1, 24, 3).transpose(1, 0, 2).reshape(24, -1) @ g_p.ravel()
+            V_inv = inverse_3x3(V + damping * V_diagonal + 1e-12 * np.eye(3))
+            WV = np.einsum("anj,njk->ank", W_stack, V_inv, optimize=True).reshape(24, -1)
+            S = U + damping * np.diag(np.diag(U)) - WV @ W_flat.T
+            b = g_c - WV @ g_p.ravel()
             if not (np.all(np.isfinite(S)) and np.all(np.isfinite(b))):
                 break
             delta_c = np.linalg.lstsq(S, b, rcond=None)[0]
-            delta_p = (V_inv @ (g_p - delta_c @ W)[..., None])[..., 0]
+            delta_p = (V_inv @ (g_p - (delta_c @ W_flat).reshape(-1, 3))[..., None])[..., 0]
             P2_new = P2 + delta_c[:12].reshape(3, 4)
             P3_new = P3 + delta_c[12:].reshape(3, 4)
             points_new = points + delta_p
@@ -185,6 +189,23 @@ def refine_triplet(
 def _contract_points(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """Σ_n A_n B_nᵀ for stacks (n, 24, 3) (one BLAS call)."""
     return A.transpose(1, 0, 2).reshape(24, -1) @ B.transpose(1, 0, 2).reshape(24, -1).T
+
+
+def inverse_3x3(M: np.ndarray) -> np.ndarray:
+    """Inverses of a stack of 3x3 matrices (n, 3, 3) by cofactors (inf/nan where singular).
+
+    Several times faster than ``np.linalg.inv`` on small blocks, and it never raises.
+    """
+    a, b, c = M[:, 0, 0], M[:, 0, 1], M[:, 0, 2]
+    d, e, f = M[:, 1, 0], M[:, 1, 1], M[:, 1, 2]
+    g, h, i = M[:, 2, 0], M[:, 2, 1], M[:, 2, 2]
+    out = np.empty_like(M)
+    out[:, 0, 0], out[:, 0, 1], out[:, 0, 2] = e * i - f * h, c * h - b * i, b * f - c * e
+    out[:, 1, 0], out[:, 1, 1], out[:, 1, 2] = f * g - d * i, a * i - c * g, c * d - a * f
+    out[:, 2, 0], out[:, 2, 1], out[:, 2, 2] = d * h - e * g, b * g - a * h, a * e - b * d
+    determinant = a * out[:, 0, 0] + b * out[:, 1, 0] + c * out[:, 2, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return out / determinant[:, None, None]
 
 
 def gauge_free_inverse(S: np.ndarray, gauge_dimension: int = GAUGE_DIMENSION) -> np.ndarray:

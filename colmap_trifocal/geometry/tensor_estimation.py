@@ -67,8 +67,9 @@ class TensorEstimationOptions:
     max_ba_iterations: int = 30
     #: Tracks on which the hypotheses are scored (a random subset).
     max_scored_tracks: int = 500
-    #: Tracks used by the bundle adjustment (a random subset of the inliers).
-    #: The covariance passed on accounts for how many were used.
+    #: Tracks used by the bundle adjustment: a subset of the inliers spread over
+    #: view 1 (:func:`spread_order`). The covariance passed on accounts for how
+    #: many were used.
     max_refined_tracks: int = 500
     #: A triplet is planar-dominant when this share of its tracks fits one plane's
     #: homographies (:mod:`.planarity`; e.g. ``PLANAR_SHARE`` = 0.5); it then gets a
@@ -100,6 +101,42 @@ class TripletTensor:
     num_inliers: int
     sigma_px: float  # estimated keypoint noise, px
     inliers: np.ndarray = field(repr=False)  # (num_tracks,) bool
+
+    def renormalised(self, K_old: np.ndarray, K_new: np.ndarray) -> TripletTensor:
+        """The same tensor in coordinates normalised by ``K_new`` instead of ``K_old`` (3x3).
+
+        Normalised points change by ``N = K_new⁻¹ K_old``; with the world changed by
+        ``diag(N, 1)`` view 1 stays ``[I | 0]`` and ``P = [A | a]`` becomes
+        ``[N A N⁻¹ | N a]``, scaled to unit norm. The covariance follows linearly
+        (row-major ``vec(N P H⁻¹) = (N ⊗ H⁻ᵀ) vec(P)``), each camera's scale direction
+        projected out. The fit is the maximum-likelihood fit in pixels whatever the
+        normalisation, so this is the tensor re-estimation from ``K_new`` converges to
+        when it reaches the same minimum.
+        """
+        N = np.linalg.solve(K_new, K_old)
+        H_inverse = np.eye(4)
+        H_inverse[:3, :3] = np.linalg.inv(N)
+        cameras, jacobian = [], np.zeros((24, 24))
+        for block, P in enumerate((self.P2, self.P3)):
+            moved = N @ P @ H_inverse
+            scale = np.linalg.norm(moved)
+            unit = moved / scale
+            projector = np.eye(12) - np.outer(unit.ravel(), unit.ravel())
+            rows = slice(12 * block, 12 * block + 12)
+            jacobian[rows, rows] = projector @ np.kron(N, H_inverse.T) / scale
+            cameras.append(unit)
+        P2, P3 = cameras
+        return TripletTensor(
+            image_ids=self.image_ids,
+            tensor=normalize_tensor(tensor_from_cameras(P2, P3)),
+            P2=P2,
+            P3=P3,
+            camera_covariance=jacobian @ self.camera_covariance @ jacobian.T,
+            num_tracks=self.num_tracks,
+            num_inliers=self.num_inliers,
+            sigma_px=self.sigma_px,
+            inliers=self.inliers,
+        )
 
 
 def transfer_errors(
@@ -142,12 +179,34 @@ def _cross_with_point(point: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.stack([py * v2 - v1, v0 - px * v2, px * v1 - py * v0], axis=-1)
 
 
+def spread_order(points: np.ndarray, rng: np.random.Generator, cells: int = 8) -> np.ndarray:
+    """An order of the tracks (n,) whose every prefix is spread over the image.
+
+    ``points`` (n, 2) are the tracks in view 1 (any units). Their bounding box is
+    cut into ``cells`` x ``cells`` cells; the order takes one random track of every
+    occupied cell, then a second, and so on, so the first k tracks cover the image
+    as evenly as the tracks allow. Reproducible for a seeded generator.
+    """
+    n = len(points)
+    low, high = points.min(axis=0), points.max(axis=0)
+    scaled = (points - low) / np.maximum(high - low, 1e-12)
+    cell = np.minimum((scaled * cells).astype(np.int64), cells - 1)
+    cell_id = cell[:, 0] * cells + cell[:, 1]
+    shuffled = rng.permutation(n)
+    by_cell = shuffled[np.argsort(cell_id[shuffled], kind="stable")]
+    sorted_cells = cell_id[by_cell]
+    first = np.searchsorted(sorted_cells, sorted_cells, side="left")
+    rank = np.arange(n) - first  # position of each track within its cell
+    return by_cell[np.lexsort((sorted_cells, rank))]
+
+
 def estimate_triplet_tensor(
     image_ids: tuple[int, int, int],
     x_px: np.ndarray,
     K0: np.ndarray,
     rng: np.random.Generator,
     options: TensorEstimationOptions | None = None,
+    second_start: bool = True,
 ) -> TripletTensor | None:
     """MSAC + Gold Standard tensor for one triplet.
 
@@ -157,6 +216,10 @@ def estimate_triplet_tensor(
         K0: prior intrinsics (3x3) used to normalise coordinates.
         rng: random generator (the result is reproducible for a seeded generator).
         options: estimation settings.
+        second_start: also refine the calibrated hypothesis (when
+            ``options.calibrated_start``); False refines the best MSAC hypothesis
+            only. The generator is used the same way either way, so with the same
+            seed both give the same first start.
 
     Returns:
         The refined tensor, or None when fewer than ``min_inliers`` tracks agree.
@@ -202,9 +265,13 @@ def estimate_triplet_tensor(
     scores = np.minimum(errors, threshold2).sum(axis=1)
     best = int(np.argmin(scores))
     starts.insert(0, (P2h[best], P3h[best]))
-    if calibrated is not None and best != len(P2h) - 1 and (planar or options.calibrated_start):
+    if (
+        calibrated is not None
+        and best != len(P2h) - 1
+        and (planar or (options.calibrated_start and second_start))
+    ):
         starts.append(calibrated)
-    order = rng.permutation(n)
+    order = spread_order(x[0], rng)
     refined = [
         _refine(x, P2, P3, pixel_scale, order, threshold2, options, BA_TOLERANCE)
         for P2, P3 in starts

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from ..common.errors import CalibrationError
 from ..common.log import logger
+from ..common.parallel import single_threaded_libraries
 from ..database.camera_groups import CameraGroup, group_cameras
 from ..database.cameras import (
     CameraInfo,
@@ -185,9 +186,10 @@ def calibrate_groups(
                 "%s: %d images with shared intrinsics", group.describe(), len(group.image_ids)
             )
         try:
-            per_method = calibrate_camera(
-                contents, cameras[0], list(group.image_ids), options, methods
-            )
+            with single_threaded_libraries():
+                per_method = calibrate_camera(
+                    contents, cameras[0], list(group.image_ids), options, methods
+                )
         except CalibrationError as exc:
             if len(groups) == 1:
                 raise

@@ -169,7 +169,7 @@ def search_focal(
     start: np.ndarray,
     rng: np.random.Generator,
     threshold_px: float = 4.0,
-    max_tracks: int = 300,
+    max_tracks: int = 150,
     workers: int | None = None,
     progress: bool = False,
     image_size: tuple[int, int] | None = None,

@@ -76,20 +76,26 @@ the original Mendonça–Cipolla ratio is kept.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Literal
 
+import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
 from colmap_trifocal.common.errors import CalibrationError
 from colmap_trifocal.common.log import logger
 
+from .camera_input import CameraInput
+from .results import PARAMETER_NAMES, CameraCalibration
+
 __all__ = [
     "ROBUST_F_SCALE",
     "ROBUST_LOSS",
     "FundamentalCalibResult",
     "calibrate_from_fundamentals",
+    "calibrate_fundamental",
     "essential_cost",
 ]
 
@@ -401,4 +407,44 @@ def calibrate_from_fundamentals(
         form="ratio",
         loss=ROBUST_LOSS if robust else "linear",
         f_scale=ROBUST_F_SCALE,
+    )
+
+
+def calibrate_fundamental(data: CameraInput) -> CameraCalibration:
+    """The Mendonça–Cipolla baseline on F re-estimated from the undistorted verified matches.
+
+    F is re-fitted (normalised 8-point on COLMAP's inliers) rather than read from
+    the database because the stored F relates raw, distorted keypoints. ``seconds``
+    is this baseline's own time.
+    """
+    clock = time.perf_counter()
+    camera, prior, keypoints = data.camera, data.prior, data.keypoints
+    fundamentals, weights = [], []
+    for (a, b), m in data.matches.items():
+        if len(m) < 15:
+            continue
+        F, _ = cv2.findFundamentalMat(keypoints[a][m[:, 0]], keypoints[b][m[:, 1]], cv2.FM_8POINT)
+        if F is not None and F.shape == (3, 3):
+            fundamentals.append(F)
+            weights.append(len(m))
+    if len(fundamentals) < 2:
+        raise CalibrationError(
+            f"camera {camera.camera_id}: fewer than 2 image pairs with enough verified matches"
+        )
+    result = calibrate_from_fundamentals(
+        np.stack(fundamentals), prior, np.asarray(weights, float), camera.single_focal
+    )
+    return CameraCalibration(
+        camera_id=camera.camera_id,
+        model=camera.model,
+        method="fundamental",
+        **dict(zip(PARAMETER_NAMES, map(float, result.intrinsics), strict=True)),
+        std={name: None for name in PARAMETER_NAMES},
+        observable={name: bool(result.success) for name in PARAMETER_NAMES},
+        num_triplets=0,
+        num_inlier_triplets=0,
+        seconds=time.perf_counter() - clock,
+        prior=tuple(map(float, prior)),  # type: ignore[arg-type]
+        start=tuple(map(float, prior)),  # type: ignore[arg-type]
+        stored_camera=camera,
     )

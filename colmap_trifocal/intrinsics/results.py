@@ -94,6 +94,13 @@ class CameraCalibration:
     #: (``constraints``: fx, fy, cx, cy in pixels). None when it did not run.
     triplet_bundle: dict | None = None
     triplets: list[TripletReport] = field(default_factory=list)
+    #: Wall seconds of each stage (read, tracks, focal_search, tensors, solve, polish,
+    #: assessment) and their ``total`` (= ``seconds``); shared stages count for every
+    #: method calibrated together.
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+    #: Triplet refinement starts the tensors stage ran for this camera (its work;
+    #: bounded by :data:`.tensor_set.MAX_STARTS_PER_TRIPLET` per triplet).
+    tensor_starts: int = 0
     tensors: list[TripletTensor] = field(default_factory=list, repr=False)
     #: The camera as stored in the database (model, size, distortion), for writing.
     stored_camera: CameraInfo | None = field(default=None, repr=False)

@@ -29,9 +29,9 @@ camera K:
   first round's K.
 
 The result is the maximum-likelihood K of the agreeing triplets' tracks. Its
-spread is measured by the same delete-a-group-of-images jackknife as the
-constraint solve (:func:`.uncertainty.jackknife_replicates`), each replicate a
-bundle adjustment started from the full solution. Which parameters are estimated
+covariance is the bundle adjustment's own (pycolmap's :func:`pycolmap.estimate_ba_covariance`,
+the Schur complement of the points, marginal of the shared camera), scaled by the
+noise variance the adjustment's residuals show. Which parameters are estimated
 (free, tied ``fy = fx``, held) follows the constraint solve's model; a model that
 holds one principal-point coordinate but not the other is not expressible with
 pycolmap's cameras, and gets no polish.
@@ -55,6 +55,7 @@ from ..common.log import keep_colmap_quiet
 from ..geometry.projective_ba import refine_triplet
 from ..geometry.tensor_estimation import TripletTensor
 from ..geometry.trifocal import intrinsics_matrix
+from .bundle_information import reduced_information
 from .parametrization import Model
 from .uncertainty import jackknife_covariance, jackknife_replicates
 
@@ -63,9 +64,6 @@ _CAMERA_ID = 1
 _FUNCTION_TOLERANCE = 1e-12
 _GRADIENT_TOLERANCE = 1e-14
 _MAX_ITERATIONS = 200
-#: A jackknife replicate starts at the full solution and moves by about a std:
-#: 1e-8 of relative cost change changes K by under 1e-4 of its std there.
-_REPLICATE_TOLERANCE = 1e-8
 #: Rounds of "choose the agreeing triplets at K, adjust them together".
 ROUNDS = 2
 #: Tracks per triplet at most (evenly spaced among its inliers): as many as the
@@ -88,19 +86,24 @@ class TripletBundleResult:
         ratios: (n,) likelihood-ratio statistic λ of every tensor at ``intrinsics``
             (inf where no calibrated cameras could be formed).
         agreeing: (n,) bool, ``λ < τ²``.
-        replicates: jackknife intrinsics (g, 4), pixels, or None when too few groups.
+        covariance_std: (4,) std of (fx, fy, cx, cy) from the adjustment's covariance
+            ``σ² (Σ H_t)⁻¹``, pixels (0 for a parameter it held).
+        jackknife_std: (4,) their delete-a-group-of-images jackknife std (one
+            Gauss–Newton step per replicate), pixels; None with too few groups.
     """
 
     intrinsics: np.ndarray
     ratios: np.ndarray
     agreeing: np.ndarray
-    replicates: np.ndarray | None
+    covariance_std: np.ndarray
+    jackknife_std: np.ndarray | None
 
-    def jackknife_std(self) -> np.ndarray | None:
-        """(4,) jackknife std of (fx, fy, cx, cy) in pixels, or None."""
-        if self.replicates is None:
-            return None
-        return np.sqrt(np.diag(jackknife_covariance(self.replicates)))
+    @property
+    def std(self) -> np.ndarray:
+        """(4,) the larger of the covariance's and the jackknife's std, pixels."""
+        if self.jackknife_std is None:
+            return self.covariance_std
+        return np.maximum(self.covariance_std, self.jackknife_std)
 
 
 def pycolmap_camera_setup(model: Model) -> tuple[str, bool, bool] | None:
@@ -289,14 +292,12 @@ class _SharedCamera:
             )
         )
 
-    def adjust(
-        self,
-        which: list[int],
-        refine_focal: bool,
-        refine_principal_point: bool,
-        function_tolerance: float = _FUNCTION_TOLERANCE,
-    ) -> bool:
-        """Bundle-adjust the triplets ``which`` (positions in ``self.triplets``) in place."""
+    def adjust(self, which: list[int], refine_focal: bool, refine_principal_point: bool) -> bool:
+        """Bundle-adjust the triplets ``which`` (positions in ``self.triplets``) in place.
+
+        Each triplet's first pose is held; its scale is a gauge direction that Ceres'
+        damping handles. False when Ceres finds no usable solution.
+        """
         config = pycolmap.BundleAdjustmentConfig()
         for position in which:
             triplet = self.triplets[position]
@@ -309,35 +310,65 @@ class _SharedCamera:
         options = bundle_adjustment_options(
             refine_focal,
             refine_principal_point,
-            function_tolerance=function_tolerance,
+            function_tolerance=_FUNCTION_TOLERANCE,
             gradient_tolerance=_GRADIENT_TOLERANCE,
             max_iterations=_MAX_ITERATIONS,
             threads=1,
         )
         with keep_colmap_quiet():
             adjuster = pycolmap.create_default_bundle_adjuster(options, config, self.reconstruction)
-            summary = adjuster.solve()
-        return bool(summary.is_solution_usable())
+            return bool(adjuster.solve().is_solution_usable())
+
+    def poses_and_points(self, triplet: _Triplet) -> tuple[np.ndarray, np.ndarray]:
+        """A triplet's cameras (3, 3, 4) ``[R | t]`` and points (n, 3), as adjusted."""
+        poses = np.stack(
+            [
+                np.asarray(self.reconstruction.images[i].cam_from_world().matrix())
+                for i in triplet.image_ids
+            ]
+        )
+        points = np.array([self.reconstruction.points3D[int(p)].xyz for p in triplet.point_ids])
+        return poses, points
+
+    def information(self, which: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per triplet of ``which``: its information (m, 4, 4) and gradient (m, 4) on
+        (fx, fy, cx, cy) and its squared error (m,), px² (:mod:`.bundle_information`)."""
+        intrinsics = self.intrinsics()
+        parts = [
+            reduced_information(
+                intrinsics, *self.poses_and_points(self.triplets[p]), self.triplets[p].pixels
+            )
+            for p in which
+        ]
+        return (
+            np.stack([h for h, _, _ in parts]),
+            np.stack([g for _, g, _ in parts]),
+            np.array([c for _, _, c in parts]),
+        )
+
+    def _squared_errors(self, triplet: _Triplet, K: np.ndarray) -> np.ndarray:
+        """(3, n) squared reprojection errors (px²) of a triplet; inf behind a camera."""
+        poses, points = self.poses_and_points(triplet)
+        errors = np.empty((3, len(points)))
+        for view, pose in enumerate(poses):
+            local = points @ pose[:, :3].T + pose[:, 3]
+            projected = local @ K.T
+            with np.errstate(divide="ignore", invalid="ignore"):
+                pixels = projected[:, :2] / projected[:, 2:]
+            squared = np.sum((pixels - triplet.pixels[view]) ** 2, axis=1)
+            errors[view] = np.where(local[:, 2] > 0, squared, np.inf)
+        return errors
 
     def ratios(self) -> np.ndarray:
         """λ of every triplet at the current cameras (inf where a point is behind a camera)."""
         K = intrinsics_matrix(self.intrinsics())
-        ratios = np.empty(len(self.triplets))
-        for position, triplet in enumerate(self.triplets):
-            points = np.array([self.reconstruction.points3D[int(p)].xyz for p in triplet.point_ids])
-            cost = 0.0
-            for view, image_id in enumerate(triplet.image_ids):
-                image = self.reconstruction.images[image_id]
-                pose = np.asarray(image.cam_from_world().matrix())
-                local = points @ pose[:, :3].T + pose[:, 3]
-                if np.any(local[:, 2] <= 0):
-                    cost = np.inf
-                    break
-                projected = local @ K.T
-                pixels = projected[:, :2] / projected[:, 2:]
-                cost += float(np.sum((pixels - triplet.pixels[view]) ** 2))
-            ratios[position] = (cost - triplet.projective_cost) / triplet.sigma2
-        return ratios
+        return np.array(
+            [
+                (float(self._squared_errors(triplet, K).sum()) - triplet.projective_cost)
+                / triplet.sigma2
+                for triplet in self.triplets
+            ]
+        )
 
 
 def polish_intrinsics(
@@ -372,15 +403,43 @@ def polish_intrinsics(
         intrinsics[1] = intrinsics[0]
     limit = tau**2
     observed = observed_tracks(tensors, tracks, start)
+    shared = _shared_camera(observed, start, intrinsics, camera_model, size)
+    if shared is None:
+        return None
+    everything = list(range(len(shared.triplets)))
+    agreeing: list[int] = []
+    # Each round: every triplet's poses and points adjusted at the current K (the
+    # previous round's result warm-starts them), the agreeing ones then with K free.
     for _ in range(ROUNDS):
-        shared = _shared_camera(observed, start, intrinsics, camera_model, size)
-        if shared is None or not shared.adjust(list(range(len(shared.triplets))), False, False):
+        if not shared.adjust(everything, False, False):
             return None
         before = shared.ratios()
         agreeing = [p for p, ratio in enumerate(before) if ratio < limit]
         if not agreeing or not shared.adjust(agreeing, refine_focal, refine_principal_point):
             return None
         intrinsics = shared.intrinsics()
+    information, gradients, costs = shared.information(agreeing)
+    free = _free_parameters(camera_model, refine_focal, refine_principal_point)
+    observations = sum(6 * len(shared.triplets[p].point_ids) for p in agreeing)
+    unknowns = sum(3 * len(shared.triplets[p].point_ids) + 11 for p in agreeing)
+    variance = float(costs.sum()) / max(observations - unknowns - free.shape[1], 1)
+    reduced = free.T @ information.sum(axis=0) @ free
+    if not np.all(np.isfinite(reduced)) or np.linalg.matrix_rank(reduced) < free.shape[1]:
+        return None
+    covariance_std = np.sqrt(np.diag(variance * free @ np.linalg.inv(reduced) @ free.T))
+
+    def replicate(keep: np.ndarray) -> np.ndarray | None:
+        kept = free.T @ information[keep].sum(axis=0) @ free
+        if np.linalg.matrix_rank(kept) < free.shape[1]:
+            return None
+        step = np.linalg.solve(kept, free.T @ gradients[keep].sum(axis=0))
+        return intrinsics - free @ step
+
+    groups = [tensors[shared.triplets[p].index].image_ids for p in agreeing]
+    replicates = jackknife_replicates(groups, replicate)
+    jackknife_std = (
+        None if replicates is None else np.sqrt(np.diag(jackknife_covariance(replicates)))
+    )
     # λ at the final K: exact for the adjusted triplets; the others keep their λ at
     # the last round's start (they disagreed there, and K moved by a fraction of a std).
     after = shared.ratios()
@@ -388,24 +447,28 @@ def polish_intrinsics(
     ratios = np.full(len(tensors), np.inf)
     for position, triplet in enumerate(shared.triplets):
         ratios[triplet.index] = after[position] if position in adjusted else before[position]
-    final = shared
-    positions = agreeing
-    groups_of = [tensors[final.triplets[p].index].image_ids for p in positions]
-
-    def replicate(keep: np.ndarray) -> np.ndarray | None:
-        copy = _copy(final)
-        kept = [p for p, k in zip(positions, keep, strict=True) if k]
-        if not copy.adjust(kept, refine_focal, refine_principal_point, _REPLICATE_TOLERANCE):
-            return None
-        return copy.intrinsics()
-
-    replicates = jackknife_replicates(groups_of, replicate)
     return TripletBundleResult(
         intrinsics=intrinsics,
         ratios=ratios,
         agreeing=ratios < limit,
-        replicates=replicates,
+        covariance_std=covariance_std,
+        jackknife_std=jackknife_std,
     )
+
+
+def _free_parameters(
+    camera_model: str, refine_focal: bool, refine_principal_point: bool
+) -> np.ndarray:
+    """A (4, k): (fx, fy, cx, cy) = A p for the k parameters the adjustment refined."""
+    columns = []
+    if refine_focal:
+        if camera_model == "SIMPLE_PINHOLE":
+            columns.append([1.0, 1.0, 0.0, 0.0])
+        else:
+            columns += [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]]
+    if refine_principal_point:
+        columns += [[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+    return np.array(columns).T
 
 
 def _shared_camera(
@@ -423,11 +486,3 @@ def _shared_camera(
         if cameras is not None and np.all(np.isfinite(cameras)):
             shared.add(triplet, cameras)
     return shared if shared.triplets else None
-
-
-def _copy(shared: _SharedCamera) -> _SharedCamera:
-    """An independent copy (the reconstruction is copied, the layout shared)."""
-    copy = _SharedCamera.__new__(_SharedCamera)
-    copy.reconstruction = pycolmap.Reconstruction(shared.reconstruction)
-    copy.triplets = shared.triplets
-    return copy

@@ -1,0 +1,154 @@
+"""The assessment stage: std, what is determined, where each value comes from, and why.
+
+Turns one camera's final solve into its :class:`.results.CameraCalibration`. A
+parameter is determined when it was estimated, its std is within tolerance (held
+values' uncertainty counted) and the data actually moved it
+(:func:`.selfcalibration.data_moves`). Intrinsics and std in pixels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry.tensor_estimation import TripletTensor
+from .camera_input import CameraInput
+from .diagnosis import diagnose
+from .focal_search import FocalSearchResult
+from .parametrization import Model
+from .polish import Polished
+from .results import PARAMETER_NAMES, CameraCalibration, TripletReport, finite_or_none
+from .selfcalibration import (
+    FallbackSolution,
+    SelfCalibrationResult,
+    fold_focal_sign,
+    theta_to_intrinsics,
+)
+from .start_candidates import StartCandidate
+
+_SOURCE_WORDS = {"prior": "the prior", "focal-search": "the focal search's estimate"}
+
+
+def assess(
+    data: CameraInput,
+    method: str,
+    candidate: StartCandidate,
+    start: np.ndarray,
+    tensors: list[TripletTensor],
+    fallback: FallbackSolution,
+    polished: Polished,
+    search: FocalSearchResult | None,
+    tracks: list[np.ndarray],
+) -> CameraCalibration:
+    """The camera's result (``seconds`` 0: the caller sets them).
+
+    Args:
+        candidate: the start whose solve was kept (its held values).
+        start: the normalisation of ``tensors`` (after a restart), pixels.
+        polished: the estimate after the polish stage.
+        tracks: per triplet, its tracks (3, n, 2), pixels (for the diagnosis).
+    """
+    camera, model = data.camera, fallback.model
+    estimate = polished.intrinsics
+    focal_scale = np.array([start[0], start[1], start[0], start[1]])
+    estimated = model.estimated(camera.single_focal)
+    within = (polished.relative_std < fallback.tolerances) & fallback.moved
+    observable = {
+        name: estimated[name] and bool(ok) for name, ok in zip(PARAMETER_NAMES, within, strict=True)
+    }
+    std = polished.relative_std * focal_scale
+    unconstrained = fallback.unconstrained.relative_std * focal_scale
+    source = parameter_sources(estimated, model, candidate.held_source)
+    reported_std = {
+        name: finite_or_none(s) if estimated[name] else None
+        for name, s in zip(PARAMETER_NAMES, std, strict=True)
+    }
+    for index, name in enumerate(PARAMETER_NAMES):
+        if source[name] == "focal-search":
+            reported_std[name] = float(candidate.held_std[index] * candidate.held[index])
+    return CameraCalibration(
+        camera_id=camera.camera_id,
+        model=camera.model,
+        method=method,
+        **dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True)),
+        std=reported_std,
+        observable=observable,
+        num_triplets=len(tensors),
+        num_inlier_triplets=polished.agreeing,
+        seconds=0.0,
+        prior=tuple(map(float, data.prior)),  # type: ignore[arg-type]
+        start=tuple(map(float, start)),  # type: ignore[arg-type]
+        assumptions=[
+            note.replace("the prior", _SOURCE_WORDS[candidate.held_source], 1)
+            if note.startswith("fx, fy")
+            else note
+            for note in model.assumptions()
+        ],
+        estimated=estimated,
+        source=source,
+        focal_search=search_summary(search),
+        diagnosis=None if all(observable.values()) else diagnose(tracks, estimate),
+        triplet_bundle=polished.summary,
+        unconstrained_std={
+            name: finite_or_none(s) for name, s in zip(PARAMETER_NAMES, unconstrained, strict=True)
+        },
+        triplets=triplet_reports(tensors, fallback.solution, start),
+        tensors=tensors,
+        stored_camera=camera,
+    )
+
+
+def parameter_sources(estimated: dict[str, bool], model: Model, held_source: str) -> dict[str, str]:
+    """Where each reported value comes from: ``trifocal`` (estimated from the
+    constraints), ``tied`` (fy = fx, square pixels assumed), ``focal-search`` or
+    ``prior`` (held)."""
+    source = {}
+    for name in PARAMETER_NAMES:
+        if estimated[name]:
+            source[name] = "trifocal"
+        elif name == "fy" and model.focal == "tied":
+            source[name] = "tied"
+        elif name in ("fx", "fy"):
+            source[name] = held_source
+        else:
+            source[name] = "prior"
+    return source
+
+
+def search_summary(search: FocalSearchResult | None) -> dict | None:
+    """The focal search's result for the JSON report (pixels; None if not run)."""
+    if search is None:
+        return None
+    return {
+        "focal": float(search.focal),
+        "std": float(search.relative_std * search.focal),
+        "decisive": bool(search.decisive),
+        "used": bool(search.improves_on_start),
+    }
+
+
+def triplet_reports(
+    tensors: list[TripletTensor], solution: SelfCalibrationResult, start: np.ndarray
+) -> list[TripletReport]:
+    """Per-tensor diagnostics of a solve (candidates and scores for msac / msac-opt)."""
+    reports = []
+    for index, tensor in enumerate(tensors):
+        candidate = score = None
+        if solution.per_tensor_theta is not None and solution.per_tensor_scores is not None:
+            intrinsics = fold_focal_sign(
+                theta_to_intrinsics(solution.per_tensor_theta[index], start)
+            )
+            candidate = tuple(map(float, intrinsics))
+            score = float(solution.per_tensor_scores[index])
+        reports.append(
+            TripletReport(
+                image_ids=tuple(int(i) for i in tensor.image_ids),  # type: ignore[arg-type]
+                num_tracks=tensor.num_tracks,
+                num_inliers=tensor.num_inliers,
+                sigma_px=float(tensor.sigma_px),
+                residual_norm=float(solution.norms[index]),
+                inlier=bool(solution.inlier_tensors[index]),
+                candidate=candidate,  # type: ignore[arg-type]
+                score=score,
+            )
+        )
+    return reports

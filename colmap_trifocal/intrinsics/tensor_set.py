@@ -1,0 +1,195 @@
+"""The tensors stage: one trifocal tensor per triplet, estimated once and reused.
+
+Each triplet's tensor is first refined from one start, the best MSAC hypothesis
+(:func:`..geometry.tensor_estimation.estimate_triplet_tensor` with
+``second_start=False``). Only the tensors that disagree with the solve's estimate
+are refined again from both starts (the second, the calibrated hypothesis, matters
+where the first ends in a plane-dominated local minimum). When the calibration
+moves to a new start K, the tensors that agree with K are carried over exactly
+(:meth:`..geometry.tensor_estimation.TripletTensor.renormalised`) and only the
+others are estimated again from K.
+
+Every triplet keeps its own seed, so the result does not depend on the order or the
+number of worker threads. The work is counted in refinement starts and bounded by
+``MAX_STARTS_PER_TRIPLET`` per triplet.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..common.errors import CalibrationError
+from ..common.log import logger
+from ..common.parallel import map_jobs
+from ..geometry.tensor_estimation import TripletTensor, estimate_triplet_tensor
+from ..geometry.trifocal import intrinsics_matrix
+from .options import CalibrationOptions
+from .selfcalibration import ConstraintProblem, intrinsics_to_theta
+from .triplet_selection import CameraTracks
+
+#: Refinement starts per triplet at most over one camera's calibration (the first
+#: start's one or two, a restart's, up to three other starts' and their second starts).
+MAX_STARTS_PER_TRIPLET = 8
+
+
+@dataclass
+class TensorSet:
+    """The tensors of one camera's triplets, normalised by ``start``.
+
+    Attributes:
+        start: (fx0, fy0, cx0, cy0) of the normalisation, pixels.
+        by_triplet: per selected triplet, its tensor (None where none was found).
+        both_starts: per triplet, whether its tensor was refined from both starts.
+    """
+
+    start: np.ndarray
+    by_triplet: list[TripletTensor | None]
+    both_starts: np.ndarray
+
+    @property
+    def positions(self) -> list[int]:
+        """Positions (among the triplets) of the tensors that exist."""
+        return [p for p, t in enumerate(self.by_triplet) if t is not None]
+
+    @property
+    def tensors(self) -> list[TripletTensor]:
+        """The tensors that exist, in triplet order (what the solve takes)."""
+        return [t for t in self.by_triplet if t is not None]
+
+
+@dataclass
+class TensorEstimator:
+    """Estimates one camera's tensors at a start K, reusing what it can.
+
+    Attributes:
+        tracks: the camera's triplets and tracks (pixels).
+        camera_id: for messages.
+        options: the tensor settings, workers, progress, ``tau``.
+        seeds: one per triplet.
+        starts_used: refinement starts run so far (the work done).
+    """
+
+    tracks: CameraTracks
+    camera_id: int
+    options: CalibrationOptions
+    seeds: list[np.random.SeedSequence]
+    starts_used: int = 0
+    _cache: dict[tuple, TripletTensor | None] = field(default_factory=dict, repr=False)
+
+    @property
+    def budget(self) -> int:
+        """Refinement starts allowed in all (``MAX_STARTS_PER_TRIPLET`` per triplet)."""
+        return MAX_STARTS_PER_TRIPLET * len(self.tracks.triplets)
+
+    def can_afford(self, starts: int) -> bool:
+        """Whether ``starts`` more refinement starts stay within the budget."""
+        return self.starts_used + starts <= self.budget
+
+    def at(self, start: np.ndarray, previous: TensorSet | None = None) -> TensorSet:
+        """Tensors normalised by ``start``: those of ``previous`` that agree with
+        ``start`` (whitened norm below τ there) carried over, the rest estimated.
+
+        Raises:
+            CalibrationError: no triplet gives a tensor.
+        """
+        count = len(self.tracks.triplets)
+        by_triplet: list[TripletTensor | None] = [None] * count
+        both = np.zeros(count, dtype=bool)
+        todo = list(range(count))
+        if previous is not None and previous.tensors:
+            agree = self.agreeing(previous, start)
+            K_old, K_new = intrinsics_matrix(previous.start), intrinsics_matrix(start)
+            for position, ok in zip(previous.positions, agree, strict=True):
+                if ok:
+                    tensor = previous.by_triplet[position]
+                    assert tensor is not None
+                    by_triplet[position] = tensor.renormalised(K_old, K_new)
+                    both[position] = previous.both_starts[position]
+            todo = [p for p in todo if by_triplet[p] is None]
+        for position, tensor in zip(todo, self._estimate(start, todo, False), strict=True):
+            by_triplet[position] = tensor
+        found = sum(t is not None for t in by_triplet)
+        logger.info("camera %d: %d of %d triplets gave a tensor", self.camera_id, found, count)
+        if found == 0:
+            raise CalibrationError(
+                f"camera {self.camera_id}: no triplet gave a consistent trifocal tensor"
+            )
+        return TensorSet(np.asarray(start, float).copy(), by_triplet, both)
+
+    def with_second_starts(self, tensors: TensorSet, disagree: np.ndarray) -> TensorSet | None:
+        """``tensors`` with the disagreeing ones (bool per existing tensor) refined from
+        both starts; None when that changes none of them (or the budget is spent)."""
+        positions = [
+            p
+            for p, bad in zip(tensors.positions, disagree, strict=True)
+            if bad and not tensors.both_starts[p]
+        ]
+        if not positions or not self.options.tensor.calibrated_start:
+            return None
+        if not self.can_afford(2 * len(positions)):
+            logger.info("camera %d: tensor budget spent; no second starts", self.camera_id)
+            return None
+        by_triplet = list(tensors.by_triplet)
+        both = tensors.both_starts.copy()
+        changed = False
+        for position, tensor in zip(
+            positions, self._estimate(tensors.start, positions, True), strict=True
+        ):
+            both[position] = True
+            if tensor is not None and not _same(tensor, by_triplet[position]):
+                by_triplet[position] = tensor
+                changed = True
+        if not changed:
+            return None
+        return TensorSet(tensors.start, by_triplet, both)
+
+    def agreeing(self, tensors: TensorSet, intrinsics: np.ndarray) -> np.ndarray:
+        """(n,) bool per existing tensor: whitened constraint norm below τ at ``intrinsics``."""
+        theta = intrinsics_to_theta(np.asarray(intrinsics, float), tensors.start)
+        norms = ConstraintProblem.build(tensors.tensors, theta).norms(theta)
+        return np.asarray(norms < self.options.tau)
+
+    def _estimate(
+        self, start: np.ndarray, positions: list[int], second_start: bool
+    ) -> list[TripletTensor | None]:
+        """The tensors of the triplets at ``positions`` from ``start`` (cached)."""
+        key = tuple(np.round(np.asarray(start, float), 9))
+        missing = [p for p in positions if (key, p, second_start) not in self._cache]
+        K0 = intrinsics_matrix(start)
+        jobs = [
+            (
+                self.tracks.triplets[p].image_ids,
+                self.tracks.tracks[p],
+                K0,
+                self.seeds[p],
+                self.options.tensor,
+                second_start,
+            )
+            for p in missing
+        ]
+        estimated = map_jobs(
+            _estimate_job,
+            jobs,
+            self.options.workers,
+            f"camera {self.camera_id}: tensors",
+            self.options.progress,
+        )
+        self.starts_used += len(missing) * (2 if second_start else 1)
+        for p, tensor in zip(missing, estimated, strict=True):
+            self._cache[(key, p, second_start)] = tensor
+        return [self._cache[(key, p, second_start)] for p in positions]
+
+
+def _same(a: TripletTensor, b: TripletTensor | None) -> bool:
+    """Whether two tensors are the same fit (identical cameras)."""
+    return b is not None and np.array_equal(a.P2, b.P2) and np.array_equal(a.P3, b.P3)
+
+
+def _estimate_job(job: tuple) -> TripletTensor | None:
+    """One triplet's tensor; its own seed makes results independent of scheduling."""
+    image_ids, tracks, K0, seed, tensor_options, second_start = job
+    return estimate_triplet_tensor(
+        image_ids, tracks, K0, np.random.default_rng(seed), tensor_options, second_start
+    )
