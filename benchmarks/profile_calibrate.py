@@ -32,24 +32,21 @@ from colmap_trifocal import CalibrationOptions, calibrate_database
 
 #: Functions of the pipeline whose cumulative time is shown, by module and name.
 STAGE_FUNCTIONS = (
-    ("database.py", "read_database"),
-    ("database.py", "_read_snapshot"),
-    ("database.py", "_snapshot"),
-    ("pipeline.py", "calibrate_camera"),
-    ("cameras.py", "undistort_to_pinhole"),
-    ("tracks.py", "__init__"),
-    ("tracks.py", "select_triplets"),
-    ("tracks.py", "tracks"),
-    ("pipeline.py", "_prepare_tensors"),
+    ("snapshot.py", "read_database"),
+    ("camera_input.py", "camera_input"),
+    ("triplet_selection.py", "select_camera_triplets"),
+    ("tracks.py", "plane_parallax"),
     ("focal_search.py", "search_focal"),
-    ("focal_search.py", "hypothesis_costs"),
-    ("pipeline.py", "_estimate_tensors"),
-    ("tensor_estimation.py", "estimate_triplet_tensor"),
     ("tensor_estimation.py", "calibrated_hypothesis"),
+    ("tensor_set.py", "at"),
+    ("tensor_set.py", "with_second_starts"),
+    ("tensor_estimation.py", "estimate_triplet_tensor"),
     ("projective_ba.py", "refine_triplet"),
-    ("pipeline.py", "_solve_camera"),
-    ("selfcalibration.py", "solve"),
-    ("pipeline.py", "_fundamental"),
+    ("selfcalibration.py", "solve_with_fallback"),
+    ("polish.py", "not_worth_it"),
+    ("triplet_bundle.py", "polish_intrinsics"),
+    ("assessment.py", "assess"),
+    ("fundamental.py", "calibrate_fundamental"),
 )
 
 

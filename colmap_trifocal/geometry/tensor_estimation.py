@@ -379,12 +379,16 @@ def _refine(
     return result, inliers, float(np.minimum(errors, threshold2).sum())
 
 
-def calibrated_hypothesis(x: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray] | None:
+def calibrated_hypothesis(
+    x: np.ndarray, threshold: float, pnp_iterations: int = 100
+) -> tuple[np.ndarray, np.ndarray] | None:
     """Cameras ``[R2|t2]``, ``[R3|t3]`` of a triplet from prior-normalised tracks x (3, n, 2).
 
     Views 1-2: essential matrix (OpenCV 5-point RANSAC) and the cheirality check;
     view 3: PnP RANSAC (SQPnP) on the tracks triangulated from views 1-2.
-    ``threshold`` is the inlier threshold in normalised units (pixels / focal).
+    ``threshold`` is the inlier threshold in normalised units (pixels / focal);
+    ``pnp_iterations`` bounds the PnP RANSAC (which runs to it where few tracks fit:
+    at a wrong focal length).
     Returns None where OpenCV finds no solution.
     """
     identity = np.eye(3)
@@ -403,7 +407,13 @@ def calibrated_hypothesis(x: np.ndarray, threshold: float) -> tuple[np.ndarray, 
     X = (X[:3] / X[3]).T
     try:  # SQPnP asserts on degenerate points, e.g. all on one line
         ok, rvec, tvec, _ = cv2.solvePnPRansac(
-            X, x3[good], identity, None, reprojectionError=threshold, flags=cv2.SOLVEPNP_SQPNP
+            X,
+            x3[good],
+            identity,
+            None,
+            reprojectionError=threshold,
+            flags=cv2.SOLVEPNP_SQPNP,
+            iterationsCount=pnp_iterations,
         )
     except cv2.error:
         return None

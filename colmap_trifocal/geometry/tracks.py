@@ -38,6 +38,8 @@ from itertools import chain, combinations
 import cv2
 import numpy as np
 
+from ..common.parallel import map_jobs
+
 Pair = tuple[int, int]
 
 #: Best-matched neighbours of an image among which its candidate triplets are formed.
@@ -264,13 +266,15 @@ def select_triplets(
     max_triplets: int | None = 100,
     neighbours_per_image: int | None = NEIGHBOURS_PER_IMAGE,
     keypoints: dict[int, np.ndarray] | None = None,
+    workers: int | None = None,
 ) -> list[Triplet]:
     """Up to ``max_triplets`` triplets with at least ``min_tracks`` tracks, spread over the images.
 
     See the module docstring for the steps. ``max_triplets=None`` evaluates every
     triangle of the view graph and returns all that qualify, most tracks first.
     With ``keypoints`` (image id -> (m, ≥2) pixels) the spread weighs candidates by
-    :func:`parallax_score` instead of their track count.
+    :func:`parallax_score` instead of their track count (computed over ``workers``
+    threads; None: one per core).
     """
     if max_triplets is None:
         ids, _ = candidate_triplets(graph, image_ids, None)
@@ -300,12 +304,13 @@ def select_triplets(
     if len(evaluated) <= max_triplets:
         return evaluated
     if keypoints is not None:
+        parallax = map_jobs(
+            plane_parallax, [triplet_points(t, keypoints) for t in evaluated], workers
+        )
         weights = np.array(
             [
-                parallax_score(
-                    len(t.keypoint_indices), plane_parallax(triplet_points(t, keypoints))
-                )
-                for t in evaluated
+                parallax_score(len(t.keypoint_indices), p)
+                for t, p in zip(evaluated, parallax, strict=True)
             ]
         )
         ranked = np.argsort(-weights, kind="stable")

@@ -49,6 +49,11 @@ COARSE_RATIO = 1.25
 #: Candidates of the fine grid, spanning one coarse step either side of the coarse
 #: minimum (a ratio of 1.057 between neighbours).
 FINE_STEPS = 9
+#: PnP RANSAC iterations on the coarse grid: far from the focal length few tracks fit
+#: and RANSAC runs to its limit; near it, it stops after a few samples anyway.
+COARSE_PNP_ITERATIONS = 30
+#: Triplets the coarse grid uses at most (the first: the best matched).
+COARSE_TRIPLETS: int | None = None  # all: fewer moved the turntable's local minima
 #: Without an image size: candidates relative to the start (the former 0.5–2× grid).
 SEARCH_FACTORS = np.geomspace(0.5, 2.0, 13)
 #: The cost curve is decisive when its minimum is interior and the cost one coarse
@@ -130,6 +135,7 @@ def hypothesis_costs(
     focals: np.ndarray,
     principal_point: np.ndarray,
     threshold_px: float,
+    pnp_iterations: int = 100,
 ) -> np.ndarray:
     """Cost (m,) of each candidate focal length (m,) for one triplet's tracks (3, n, 2).
 
@@ -144,7 +150,7 @@ def hypothesis_costs(
     for index, focal in enumerate(focals):
         K = intrinsics_matrix(np.array([focal, focal, *principal_point]))
         x = (homogeneous @ np.linalg.inv(K).T)[..., :2]
-        cameras = calibrated_hypothesis(x, threshold_px / focal)
+        cameras = calibrated_hypothesis(x, threshold_px / focal, pnp_iterations)
         if cameras is not None:
             errors = transfer_errors(x, *cameras, np.array([focal, focal]))
             costs[index] = np.minimum(errors, threshold2).mean()
@@ -200,8 +206,13 @@ def search_focal(
         n = x.shape[1]
         subsets.append(x[:, rng.choice(n, size=min(n, max_tracks), replace=False)])
 
-    def evaluate(focals: np.ndarray, count: int) -> np.ndarray:
-        jobs = [(x[:, :count], focals, principal_point, threshold_px) for x in subsets]
+    def evaluate(
+        focals: np.ndarray, count: int, pnp_iterations: int = 100, triplets: int | None = None
+    ) -> np.ndarray:
+        jobs = [
+            (x[:, :count], focals, principal_point, threshold_px, pnp_iterations)
+            for x in subsets[:triplets]
+        ]
         return np.array(map_jobs(_costs_job, jobs, workers, "focal search", progress))
 
     if image_size is None:
@@ -215,7 +226,9 @@ def search_focal(
         return result
     low, high = focal_range(*image_size)
     coarse = np.geomspace(low, high, int(np.ceil(np.log(high / low) / np.log(COARSE_RATIO))) + 1)
-    coarse_costs = evaluate(coarse, max(max_tracks // 2, 1)).sum(axis=0)
+    coarse_costs = evaluate(
+        coarse, max(max_tracks // 2, 1), COARSE_PNP_ITERATIONS, COARSE_TRIPLETS
+    ).sum(axis=0)
     best = int(np.argmin(coarse_costs))
     ratio = coarse[1] / coarse[0]
     fine = coarse[best] * ratio ** np.linspace(-1.0, 1.0, FINE_STEPS)

@@ -13,6 +13,14 @@ The bundle adjustment replaces the constraint estimate when
   constraint estimate only on clear evidence that it is the tighter one, as on
   near-planar scenes, where the first-order whitening of the constraints fails.
 
+Before any adjustment: where every tensor already agrees with the constraint
+estimate (the polish cannot add triplets, and starts at its optimum's first-order
+neighbourhood), its jackknife is predicted from its first Gauss–Newton step
+(:func:`.triplet_bundle.predicted_jackknife_std`, milliseconds); where the
+prediction exceeds ``SKIP_RATIO`` times the constraints' variance the polish could
+not be kept, and is not run. Where tensors disagree (a near-planar scene) the
+polish can change which triplets count, and always runs.
+
 Its std is then the largest of the constraint solve's (which counts held and tied
 values' uncertainty), its covariance's and its jackknife's. Otherwise everything is
 returned unchanged.
@@ -29,12 +37,22 @@ from ..common.log import logger
 from ..geometry.tensor_estimation import TripletTensor
 from .results import PARAMETER_NAMES
 from .selfcalibration import FallbackSolution
-from .triplet_bundle import TripletBundleResult, polish_intrinsics, pycolmap_camera_setup
+from .triplet_bundle import (
+    TripletBundleResult,
+    polish_intrinsics,
+    predicted_jackknife_std,
+    pycolmap_camera_setup,
+)
 from .uncertainty import jackknife_covariance
 
 #: Largest ratio of the polish's jackknife variance to the constraint solve's at
 #: which the polish is kept.
 VARIANCE_RATIO = 0.5
+#: Ratio of the predicted polish jackknife variance to the constraints' above which the
+#: polish is not run: ``VARIANCE_RATIO`` with 10 % room for its further iterations
+#: (where every tensor agrees the polish starts next to its optimum, and the first
+#: step's prediction is within a few percent of the final ratio).
+SKIP_RATIO = 1.1 * VARIANCE_RATIO
 
 
 @dataclass
@@ -80,13 +98,19 @@ def polish(
     model = fallback.model
     if pycolmap_camera_setup(model) is None:
         return unchanged
+    focal_scale = np.array([start[0], start[1], start[0], start[1]])
+    constraints = dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True))
+    skip = not_worth_it(tensors, tracks, start, estimate, fallback, focal_scale)
+    if skip:
+        logger.info("camera %d: bundle adjustment of the triplets not run: %s", camera_id, skip)
+        summary = {"used": False, "agreeing": None, "constraints": constraints, "rejected": skip}
+        return Polished(estimate, fallback.relative_std, agreeing, summary)
     result = polish_intrinsics(tensors, tracks, start, estimate, model, size, tau)
     summary = {
         "used": False,
         "agreeing": None if result is None else int(result.agreeing.sum()),
-        "constraints": dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True)),
+        "constraints": constraints,
     }
-    focal_scale = np.array([start[0], start[1], start[0], start[1]])
     why = rejected(result, focal_scale, fallback, agreeing)
     if why or result is None:
         logger.info("camera %d: bundle adjustment of the triplets not kept: %s", camera_id, why)
@@ -104,6 +128,43 @@ def polish(
     return Polished(result.intrinsics, relative_std, int(result.agreeing.sum()), summary)
 
 
+def not_worth_it(
+    tensors: list[TripletTensor],
+    tracks: dict[tuple[int, int, int], np.ndarray],
+    start: np.ndarray,
+    estimate: np.ndarray,
+    fallback: FallbackSolution,
+    focal_scale: np.ndarray,
+) -> str | None:
+    """Why the polish cannot be kept, judged before it runs (see the module), or None."""
+    if fallback.solution.jackknife is None or not np.all(fallback.solution.inlier_tensors):
+        return None
+    predicted = predicted_jackknife_std(tensors, tracks, start, estimate, fallback.model)
+    if predicted is None:
+        return None
+    polish_variance, constraint_variance = _variances(predicted, focal_scale, fallback)
+    if polish_variance > SKIP_RATIO * constraint_variance:
+        return (
+            f"its predicted jackknife spread ({np.sqrt(polish_variance):.2%}) exceeds the "
+            f"constraints' ({np.sqrt(constraint_variance):.2%})"
+        )
+    return None
+
+
+def _variances(
+    polish_std: np.ndarray, focal_scale: np.ndarray, fallback: FallbackSolution
+) -> tuple[float, float]:
+    """Summed variances of the estimated parameters, relative to the focal length: the
+    polish's (from its std in pixels) and the constraint solve's jackknife."""
+    estimated = fallback.model.parametrization(np.ones(4), np.ones(4)).matrix.any(axis=1)
+    assert fallback.solution.jackknife is not None
+    constraint = np.diag(jackknife_covariance(fallback.solution.jackknife))
+    return (
+        float(np.sum((polish_std / focal_scale)[estimated] ** 2)),
+        float(np.sum(constraint[estimated])),
+    )
+
+
 def rejected(
     result: TripletBundleResult | None,
     focal_scale: np.ndarray,
@@ -117,12 +178,9 @@ def rejected(
         return (
             f"{int(result.agreeing.sum())} triplets agree with it, {agreeing} with the constraints"
         )
-    replicates = fallback.solution.jackknife
-    if replicates is None or result.jackknife_std is None:
+    if fallback.solution.jackknife is None or result.jackknife_std is None:
         return None
-    estimated = fallback.model.parametrization(np.ones(4), np.ones(4)).matrix.any(axis=1)
-    polish_variance = float(np.sum((result.jackknife_std / focal_scale)[estimated] ** 2))
-    constraint_variance = float(np.sum(np.diag(jackknife_covariance(replicates))[estimated]))
+    polish_variance, constraint_variance = _variances(result.jackknife_std, focal_scale, fallback)
     if polish_variance > VARIANCE_RATIO * constraint_variance:
         return (
             f"its jackknife spread ({np.sqrt(polish_variance):.2%}) is not clearly below the "

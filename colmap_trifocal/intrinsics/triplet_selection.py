@@ -71,7 +71,12 @@ def select_camera_triplets(
         )
     else:
         triplets = select_triplets(
-            graph, image_ids, options.min_tracks, options.max_triplets, keypoints=data.keypoints
+            graph,
+            image_ids,
+            options.min_tracks,
+            options.max_triplets,
+            keypoints=data.keypoints,
+            workers=options.workers,
         )
     if not triplets:
         raise CalibrationError(
