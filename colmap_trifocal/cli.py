@@ -17,6 +17,7 @@ import os
 import signal
 import sys
 import threading
+import time
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -259,6 +260,7 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     from .database.snapshot import check_writable, read_database
     from .intrinsics.calibrate import (
         CalibrationOptions,
+        add_read_seconds,
         calibrate_groups,
         check_options,
         parse_prior,
@@ -300,9 +302,12 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     if args.write:  # refuse a read-only database now, not after the calibration
         check_writable(args.database)
     check_options(options)
+    clock = time.perf_counter()
     contents = read_database(args.database)
+    read_seconds = time.perf_counter() - clock
     by_method, skipped = calibrate_groups(contents, options, (options.method,))
     results = by_method[options.method]
+    add_read_seconds(results, read_seconds)
     # With the JSON on stdout, the table and messages go to stderr: stdout stays JSON.
     out = sys.stderr if json_to_stdout else sys.stdout
     print(
