@@ -16,15 +16,15 @@
      wrong (constraints no smaller at the true K than at the prior); neither the
      5-point solver nor PnP is degenerate for planes, so this hypothesis wins
      there, and the projective refinement removes the prior's bias.
-3. Two starts, the best hypothesis and the calibrated one, are each refined:
-   their inliers (at most ``max_refined_tracks`` of them, a seeded random
-   subset) by three-view projective bundle adjustment (:mod:`.projective_ba`),
-   inliers re-selected with the refined cameras and refined once more; then on
-   to convergence (``final_ba_tolerance``). The lower MSAC score wins. Measured
-   on a facade with 1 % relief (docs/planar_and_sequences.md): the BA from one
-   start stopped early along a flat valley or in a local minimum, and a third
-   to a half of the tensors disagreed with the true K; refined to convergence
-   from both starts, the tensors are those the BA reaches from the true cameras.
+3. The best hypothesis is refined: its inliers (at most ``max_refined_tracks`` of
+   them, a subset spread over view 1, :func:`spread_order`) by three-view
+   projective bundle adjustment (:mod:`.projective_ba`), inliers re-selected with
+   the refined cameras and refined once more; then on to convergence
+   (``final_ba_tolerance``). With ``second_start`` the calibrated hypothesis is
+   refined the same way too and the lower MSAC score wins: with little depth
+   relief (a facade) the BA from one start can stop along a flat valley or in a
+   local minimum. The caller asks for it only for tensors that disagree with the
+   estimate (:mod:`..intrinsics.tensor_set`).
 
 Optionally (``TensorEstimationOptions.planar_share``, off by default), a triplet
 whose tracks mostly fit one plane gets a plane + parallax start as well

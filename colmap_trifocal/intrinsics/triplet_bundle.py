@@ -28,10 +28,14 @@ camera K:
   Ceres' damping handles). Two rounds: the agreeing set is chosen again at the
   first round's K.
 
-The result is the maximum-likelihood K of the agreeing triplets' tracks. Its
-covariance is the bundle adjustment's own (pycolmap's :func:`pycolmap.estimate_ba_covariance`,
-the Schur complement of the points, marginal of the shared camera), scaled by the
-noise variance the adjustment's residuals show. Which parameters are estimated
+The result is the maximum-likelihood K of the agreeing triplets' tracks. Each
+triplet's information on the camera is its Schur complement (points and poses
+eliminated, :mod:`.bundle_information`; the same marginal as pycolmap's
+``estimate_ba_covariance``): their sum gives the covariance, scaled by the noise
+variance the residuals show, and one Gauss–Newton step per image group left out
+gives the same delete-a-group jackknife as the constraint solve's
+(:func:`.uncertainty.jackknife_replicates`) without new adjustments. Which
+parameters are estimated
 (free, tied ``fy = fx``, held) follows the constraint solve's model; a model that
 holds one principal-point coordinate but not the other is not expressible with
 pycolmap's cameras, and gets no polish.
