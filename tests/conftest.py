@@ -7,7 +7,10 @@ Markers (``pyproject.toml``):
   not exist (set before its fixtures, so notebooks and subprocesses inherit it), and
   :func:`shared_dataset` fails in a test without the marker: ``-m "not real_data"``
   reads no real data.
-* ``slow``: end-to-end runs and sweeps (more than about 10 s on 2 cores).
+* ``slow``: more than about 10 s on 2 cores: notebook executions, databases built from
+  real images, real signals sent over whole runs, mapping runs, sweeps over seeds.
+  Sweeps whose point is a statistic (coverage, means over many seeds) are benchmarks
+  (``benchmarks/``); a test keeps one or two seeds of the same code.
 
 Databases built from images (SIFT, matching: about a minute per Strecha scene on 2
 cores) come from :class:`DatabaseCache`: one build per key, shared by the xdist workers

@@ -996,6 +996,7 @@ def _write_state(path: Path, original: bytes, new_params: np.ndarray) -> str:
     return "written"
 
 
+@pytest.mark.slow  # 12 real runs (SIGINT), 5 (SIGTERM, SIGHUP): 30-70 s each
 @pytest.mark.parametrize(
     ("signum", "line", "status", "runs"),
     [
@@ -1133,6 +1134,7 @@ def test_repeated_camera_id_is_calibrated_once(
     assert len(result.stdout.splitlines()) == 2  # the header and one camera
 
 
+@pytest.mark.slow  # the whole run: calibration, mapping, bundle adjustment
 def test_run_copies_what_is_still_in_the_wal(good_database: Path, tmp_path: Path) -> None:
     """``run --database`` copies with SQLite's backup API: committed rows still in the
     ``-wal`` reach the workspace's copy (a copy of the main file lost the verified

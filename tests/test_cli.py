@@ -93,7 +93,6 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, CliResult]:
     return folder / "demo", run_cli("demo", "--keep", folder)
 
 
-@pytest.mark.slow
 def test_demo_runs_the_pipeline(demo: tuple[Path, CliResult]) -> None:
     workspace, result = demo
     assert result.returncode == 0, result.stderr
@@ -111,7 +110,6 @@ def test_demo_runs_the_pipeline(demo: tuple[Path, CliResult]) -> None:
     assert not [line for line in result.stderr.splitlines() if line.startswith("I20")]
 
 
-@pytest.mark.slow
 def test_show_renders_png(
     demo: tuple[Path, CliResult], tmp_path: Path, run_main: Callable[..., CliResult]
 ) -> None:
@@ -126,7 +124,6 @@ def test_show_renders_png(
     assert (image < 250).any(axis=2).mean() > 0.002  # not a blank white background
 
 
-@pytest.mark.slow
 def test_run_renders_png(
     demo: tuple[Path, CliResult], tmp_path: Path, run_main: Callable[..., CliResult]
 ) -> None:

@@ -48,6 +48,7 @@ def _cli_json(database: Path, out: Path, seed: int) -> list[dict]:
     return entries
 
 
+@pytest.mark.slow  # two processes, each a whole calibration
 def test_cli_same_seed_same_json(database: tuple[Path, np.ndarray], tmp_path: Path) -> None:
     """Two runs of the command with one seed write the same JSON (but the times)."""
     path, truth = database
@@ -58,7 +59,9 @@ def test_cli_same_seed_same_json(database: tuple[Path, np.ndarray], tmp_path: Pa
     assert np.mean(np.abs(estimate / truth - 1)) < 0.01
 
 
-@pytest.mark.parametrize("method", ["msac-opt", "fundamental"])
+@pytest.mark.parametrize(
+    "method", [pytest.param("msac-opt", marks=pytest.mark.slow), "fundamental"]
+)
 def test_api_same_seed_same_bits_for_any_number_of_workers(
     database: tuple[Path, np.ndarray], method: str
 ) -> None:
@@ -79,6 +82,7 @@ def test_api_same_seed_same_bits_for_any_number_of_workers(
             assert tensor.tensor.tobytes() == expected.tensor.tobytes()
 
 
+@pytest.mark.slow  # four seeds
 def test_other_seeds_agree_within_the_reported_std(database: tuple[Path, np.ndarray]) -> None:
     """Different seeds: every parameter within 4 std (the first seed's) of the first seed,
     and each estimate within 4 std of the truth."""

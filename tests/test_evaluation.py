@@ -120,6 +120,7 @@ def test_synthetic_on_a_dask_cluster_matches_local(tmp_path: Path) -> None:
     assert estimates[0] == estimates[1]
 
 
+@pytest.mark.slow  # the client gives up after its 10 s timeout
 def test_unreachable_dask_scheduler(tmp_path: Path) -> None:
     """No scheduler at the address: one line after the client's 10 s timeout, nothing
     written. A process (the other bad inputs are rows of ``test_bad_input.py``, in the
@@ -130,6 +131,7 @@ def test_unreachable_dask_scheduler(tmp_path: Path) -> None:
     assert not output.exists()
 
 
+@pytest.mark.slow
 @pytest.mark.real_data
 def test_evaluate_on_strecha(strecha_database, tmp_path: Path) -> None:
     """Two runs per perturbation range on 8 images of fountain-P11, from the cached database."""

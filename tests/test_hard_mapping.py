@@ -53,6 +53,7 @@ def test_every_pair_of_a_straight_drive_is_forward_motion(
     assert 3.0 < max(p.tri_angle for p in measured) < 8.0
 
 
+@pytest.mark.slow  # plain mapping, then run with its retries (about 20 s)
 def test_plain_colmap_has_no_model_and_run_registers_the_drive(
     straight_drive: tuple[Path, np.ndarray], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

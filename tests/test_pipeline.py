@@ -64,6 +64,7 @@ def test_other_methods(method: str, tmp_path: Path) -> None:
     assert result.method == method
 
 
+@pytest.mark.slow  # three calibrations of a two-camera rig (about 10 s)
 def test_multi_camera_database(tmp_path: Path) -> None:
     """Each camera of a rig is calibrated from the triplets of its own images."""
     path = tmp_path / "database.db"

@@ -305,6 +305,7 @@ def test_exact_keypoints_order_invariant(transform: str, seed: int) -> None:
     assert result.num_inlier_triplets == base.num_inlier_triplets
 
 
+@pytest.mark.slow  # calibrations of many drawn scenes (about 10 s)
 @SLOW
 @given(st.sampled_from(sorted(TRANSFORMS)), st.integers(0, 2**32 - 1))
 def test_noisy_keypoints_order_invariant_within_a_fraction_of_std(

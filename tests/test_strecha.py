@@ -1,7 +1,13 @@
-"""Real SIFT matches: the accuracy bar on the Strecha scenes against gt_dense_cameras."""
+"""Real SIFT matches: the accuracy bar on the Strecha scenes against gt_dense_cameras.
+
+One seeded run per case; the statistics over many seeds are benchmarks:
+``benchmarks/strecha_accuracy.py`` (±5 % priors, every method, 20 seeds) and
+``benchmarks/strecha_wide_priors.py`` (priors 10-30 % off).
+"""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -10,9 +16,11 @@ import pytest
 from colmap_trifocal import CalibrationOptions, calibrate_database
 from colmap_trifocal.datasets.strecha import ground_truth_intrinsics, read_camera_file
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from strecha_wide_priors import calibrate_from_wide_prior  # noqa: E402
+
 GROUND_TRUTH = np.array([2759.48, 2764.16, 1520.69, 1006.81])
 SCENES = ["fountain-P11", "Herz-Jesus-P8"]
-SEEDS = [0, 1, 2]
 
 
 def mean_relative_error(estimate: np.ndarray, truth: np.ndarray) -> float:
@@ -31,23 +39,24 @@ def test_camera_file_reader(tmp_path: Path) -> None:
     assert (camera.width, camera.height) == (3072, 2048)
 
 
+@pytest.mark.slow  # the first builds the scene's database (20-40 s)
 @pytest.mark.real_data
 @pytest.mark.parametrize("scene", SCENES)
 def test_msac_opt_accuracy_bar(scene: str, strecha_database) -> None:
-    """msac-opt from a ±5 % prior: mean error ≤ 0.5 %, no seed above 1 %."""
+    """msac-opt from a ±5 % prior (seed 0): within 0.5 %, at least 10 agreeing triplets.
+
+    The mean over seeds (≤ 0.5 %, none above 1 %; measured 0.15 % and 0.13 % over 20
+    seeds) is ``benchmarks/strecha_accuracy.py``'s."""
     database, folder = strecha_database(scene)
     truth = ground_truth_intrinsics(folder)
     np.testing.assert_allclose(truth, GROUND_TRUTH, rtol=1e-6)
-    errors = []
-    for seed in SEEDS:
-        prior = truth * (1 + np.random.default_rng(100 + seed).uniform(-0.05, 0.05, 4))
-        (result,) = calibrate_database(database, CalibrationOptions(prior=tuple(prior), seed=seed))
-        errors.append(mean_relative_error(result.intrinsics, truth))
-        assert result.num_inlier_triplets >= 10
-    assert np.mean(errors) <= 0.005, errors
-    assert max(errors) <= 0.01, errors
+    prior = truth * (1 + np.random.default_rng(100).uniform(-0.05, 0.05, 4))
+    (result,) = calibrate_database(database, CalibrationOptions(prior=tuple(prior), seed=0))
+    assert mean_relative_error(result.intrinsics, truth) <= 0.005, result.intrinsics
+    assert result.num_inlier_triplets >= 10
 
 
+@pytest.mark.slow  # the first builds the scene's database (20-40 s)
 @pytest.mark.real_data
 def test_msac_and_fundamental_on_fountain(strecha_database) -> None:
     """msac alone is within 1 %; TrifocalCalib beats the Fundamental baseline."""
@@ -63,6 +72,7 @@ def test_msac_and_fundamental_on_fountain(strecha_database) -> None:
     assert msac_error < mean_relative_error(fundamental.intrinsics, truth)
 
 
+@pytest.mark.slow  # the first builds the scene's database (20-40 s)
 @pytest.mark.real_data
 @pytest.mark.parametrize("scene", SCENES)
 def test_from_colmap_default_camera(scene: str, strecha_database) -> None:
@@ -77,13 +87,14 @@ def test_from_colmap_default_camera(scene: str, strecha_database) -> None:
     assert result.num_inlier_triplets >= 0.75 * result.num_triplets
 
 
+@pytest.mark.slow  # the first builds the scene's database (20-40 s)
 @pytest.mark.real_data
 def test_wide_priors_on_fountain(strecha_database) -> None:
-    """Priors 10-30 % off per parameter (random signs): the same accuracy as ±5 %."""
+    """A prior 10-30 % off per parameter (random signs, run 0): the same accuracy as ±5 %.
+
+    More runs (the suite had 3, all within 0.5 %): ``benchmarks/strecha_wide_priors.py``."""
     database, folder = strecha_database("fountain-P11")
     truth = ground_truth_intrinsics(folder)
-    for seed in SEEDS:
-        rng = np.random.default_rng(200 + seed)
-        prior = truth * (1 + rng.choice([-1, 1], 4) * rng.uniform(0.10, 0.30, 4))
-        (result,) = calibrate_database(database, CalibrationOptions(prior=tuple(prior), seed=seed))
-        assert mean_relative_error(result.intrinsics, truth) <= 0.005, (prior, result.intrinsics)
+    prior, result, error_percent = calibrate_from_wide_prior(database, truth, run=0)
+    assert np.all(np.abs(prior / truth - 1) >= 0.10)
+    assert error_percent <= 0.5, (prior, result.intrinsics)
