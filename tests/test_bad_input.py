@@ -6,8 +6,9 @@ the command line (``calibrate PATH ARGS`` unless the row gives another command: 
 stderr line ``error: ...`` containing the row's fragment, no traceback, every file below
 the row's folder byte-identical (sha256) and none added or removed (no ``.bak``, no
 ``-wal``/``-shm`` left behind), and no ``run`` workspace created. The table had 31 rows
-before issue 15, 70 after, and 80 with the rows that were separate tests in
-``test_cli.py`` and ``test_evaluation.py`` (``pytest --collect-only -k "test_bad_input["``).
+before issue 15, 70 after, and 83 with the rows that were separate tests or assertions
+in ``test_cli.py``, ``test_evaluation.py`` and ``test_camera_groups.py`` (issue 24;
+``pytest --collect-only -k "test_bad_input["``).
 
 The rows run ``colmap_trifocal.cli.main`` in this process (``conftest.run_main``: file
 descriptors captured, so pycolmap's C++ log counts as stderr; signal handlers, logging
@@ -537,6 +538,20 @@ CASES: dict[str, Case] = {
         _models(),
         "is a file of the dataset",
         argv=lambda f, p, w: ("evaluate", "colmap", p, "--json", p / "points3D.bin"),
+    ),
+    # ----- from test_camera_groups.py: calibrate --model
+    "calibrate --output not empty": Case(
+        lambda f, g: _copy(_model(f).parent.parent, g),
+        "--output must be a new or empty folder",
+        argv=lambda f, p, w: ("calibrate", p, "--model", f / "sparse" / "0", "--output", f),
+    ),
+    "calibrate --model without --output": Case(
+        lambda f, g: _copy(_model(f).parent.parent, g),
+        "--model and --output go together",
+        argv=lambda f, p, w: ("calibrate", p, "--model", f / "sparse" / "0"),
+    ),
+    "calibrate --refine-distortion without --model": Case(
+        _copy, "--refine and --refine-distortion need --model", ("--refine-distortion",)
     ),
     # ----- item 3: run never deletes its inputs
     "run --database is WORKSPACE/database.db, --overwrite": Case(

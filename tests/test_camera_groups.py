@@ -6,17 +6,15 @@ from __future__ import annotations
 import hashlib
 import json
 import sqlite3
-import subprocess
-import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pycolmap
 import pytest
-from conftest import synthesize
+from conftest import CliResult, synthesize
 
 from colmap_trifocal import CalibrationError
-from colmap_trifocal.cli import main
 from colmap_trifocal.database.camera_groups import format_ids, group_cameras
 from colmap_trifocal.database.cameras import CameraInfo
 from colmap_trifocal.database.shared_cameras import merge_group_cameras
@@ -195,7 +193,7 @@ def test_small_groups_are_skipped_while_others_calibrate(tmp_path: Path) -> None
 
 
 def test_cli_reports_skipped_group_in_json_and_on_stderr(
-    tmp_path: Path, capsys: pytest.CaptureFixture
+    tmp_path: Path, run_main: Callable[..., CliResult]
 ) -> None:
     path = tmp_path / "database.db"
     per_image_database(path, images=8)
@@ -208,12 +206,11 @@ def test_cli_reports_skipped_group_in_json_and_on_stderr(
     con.close()
     out = tmp_path / "out.json"
     prior = ",".join(map(str, PRIOR))
-    code = main(["calibrate", str(path), "--prior", prior, "--json", str(out), "--write"])
-    captured = capsys.readouterr()
-    assert code == 0
-    assert "warning: camera 8 skipped: 1 image" in captured.err
-    assert "wrote 7 camera(s)" in captured.out
-    assert "shared by camera ids 1-7" in captured.out
+    result = run_main("calibrate", path, "--prior", prior, "--json", out, "--write")
+    assert result.returncode == 0, result.stderr
+    assert "warning: camera 8 skipped: 1 image" in result.stderr
+    assert "wrote 7 camera(s)" in result.stdout
+    assert "shared by camera ids 1-7" in result.stdout
     calibrated, skipped = json.loads(out.read_text())
     assert calibrated["camera_ids"] == [1, 2, 3, 4, 5, 6, 7]
     assert calibrated["start_source"] == "--prior"
@@ -223,13 +220,14 @@ def test_cli_reports_skipped_group_in_json_and_on_stderr(
     np.testing.assert_allclose(stored[7].intrinsics, TRUTH, rtol=1e-5)
 
 
-def test_verbose_accepted_after_the_subcommand(tmp_path: Path) -> None:
+def test_verbose_accepted_after_the_subcommand(
+    tmp_path: Path, run_main: Callable[..., CliResult]
+) -> None:
     path = tmp_path / "database.db"
     synthesize(path, "PINHOLE", [1100.0, 1250.0, 530.0, 370.0])
-    base = [sys.executable, "-m", "colmap_trifocal.cli", "calibrate", str(path)]
-    base += ["--prior", "1140,1210,545,360"]
-    for extra, expected in (([], False), (["-v"], True), (["-vv"], True)):
-        done = subprocess.run([*base, *extra], capture_output=True, text=True, timeout=300)
+    base = ["calibrate", path, "--prior", "1140,1210,545,360"]
+    for extra, expected in (([], False), (["-v"], True), (["-vv"], True), ([], False)):
+        done = run_main(*base, *extra)
         assert done.returncode == 0, done.stderr
         assert ("INFO colmap_trifocal: read" in done.stderr) == expected, extra
 
@@ -354,7 +352,9 @@ def test_merge_group_cameras_on_the_old_schema(tmp_path: Path) -> None:
 # --------------------------------------------------------------------------- into a model
 
 
-def test_calibrate_into_a_copy_of_a_model(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+def test_calibrate_into_a_copy_of_a_model(
+    tmp_path: Path, run_main: Callable[..., CliResult]
+) -> None:
     path = tmp_path / "database.db"
     truth_model = per_image_database(path, points=600)
     model = tmp_path / "model"
@@ -366,9 +366,10 @@ def test_calibrate_into_a_copy_of_a_model(tmp_path: Path, capsys: pytest.Capture
     before = {p.name: _sha256(p) for p in model.iterdir()}
     output, report = tmp_path / "calibrated", tmp_path / "out.json"
     prior = ",".join(map(str, PRIOR))
-    args = ["calibrate", str(path), "--prior", prior, "--model", str(model)]
-    assert main([*args, "--output", str(output), "--json", str(report)]) == 0
-    assert "mean reprojection error" in capsys.readouterr().out
+    args = ["calibrate", path, "--prior", prior, "--model", model]
+    result = run_main(*args, "--output", output, "--json", report)
+    assert result.returncode == 0, result.stderr
+    assert "mean reprojection error" in result.stdout
     assert {p.name: _sha256(p) for p in model.iterdir()} == before  # the input model is kept
     errors = json.loads(report.read_text())[0]["model"]["reprojection_error_px"]
     assert errors["with_estimate"] < errors["given"]
@@ -378,9 +379,4 @@ def test_calibrate_into_a_copy_of_a_model(tmp_path: Path, capsys: pytest.Capture
         fx, cx, cy = camera.params[:3]
         np.testing.assert_allclose([fx, fx, cx, cy], TRUTH, rtol=1e-4)
         assert camera.params[3] == pytest.approx(0.05)  # distortion not refined by default
-    assert main([*args, "--output", str(output)]) == 2  # not an empty folder
-    assert "--output must be a new or empty folder" in capsys.readouterr().err
-    assert main(["calibrate", str(path), "--model", str(model)]) == 2
-    assert "error: --model and --output go together" in capsys.readouterr().err
-    assert main(["calibrate", str(path), "--refine-distortion"]) == 2
-    assert "error: --refine and --refine-distortion need --model" in capsys.readouterr().err
+    # The refusals of --model/--output/--refine are rows of test_bad_input.py.
