@@ -4,8 +4,10 @@ adjustment (:mod:`.triplet_bundle`) where that is at least as well supported.
 The bundle adjustment replaces the constraint estimate when
 
 * at least as many triplets agree with it (λ < τ²) as tensors did (‖r‖ < τ), and
-* its image jackknife variance is at most ``VARIANCE_RATIO`` times the constraint
-  solve's: the sum of the estimated parameters' jackknife variances relative to the
+* its image jackknife variance is no larger than the constraint solve's where more
+  triplets agree with it (the constraints' first-order whitening misjudged a
+  near-planar triplet, which is what the polish is for), and at most
+  ``VARIANCE_RATIO`` times the constraint solve's where the same number agree: the sum of the estimated parameters' jackknife variances relative to the
   focal length, over the same image groups (the polish's replicates are one
   Gauss–Newton step each on the triplets' Schur complements,
   :mod:`.bundle_information`). Two such variances from ten image groups differ by
@@ -46,7 +48,8 @@ from .triplet_bundle import (
 from .uncertainty import jackknife_covariance
 
 #: Largest ratio of the polish's jackknife variance to the constraint solve's at
-#: which the polish is kept.
+#: which the polish is kept when no more triplets agree with it than with the
+#: constraints (with more: 1).
 VARIANCE_RATIO = 0.5
 #: Ratio of the predicted polish jackknife variance to the constraints' above which the
 #: polish is not run: ``VARIANCE_RATIO`` with 10 % room for its further iterations
@@ -181,7 +184,8 @@ def rejected(
     if fallback.solution.jackknife is None or result.jackknife_std is None:
         return None
     polish_variance, constraint_variance = _variances(result.jackknife_std, focal_scale, fallback)
-    if polish_variance > VARIANCE_RATIO * constraint_variance:
+    limit = 1.0 if int(result.agreeing.sum()) > agreeing else VARIANCE_RATIO
+    if polish_variance > limit * constraint_variance:
         return (
             f"its jackknife spread ({np.sqrt(polish_variance):.2%}) is not clearly below the "
             f"constraints' ({np.sqrt(constraint_variance):.2%})"
