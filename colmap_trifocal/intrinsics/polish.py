@@ -7,13 +7,14 @@ The bundle adjustment replaces the constraint estimate when
 * its image jackknife variance is no larger than the constraint solve's where more
   triplets agree with it (the constraints' first-order whitening misjudged a
   near-planar triplet, which is what the polish is for), and at most
-  ``VARIANCE_RATIO`` times the constraint solve's where the same number agree: the sum of the estimated parameters' jackknife variances relative to the
+  ``VARIANCE_RATIO`` times the constraint solve's where as many agree. A variance
+  here is the sum of the estimated parameters' jackknife variances relative to the
   focal length, over the same image groups (the polish's replicates are one
   Gauss–Newton step each on the triplets' Schur complements,
   :mod:`.bundle_information`). Two such variances from ten image groups differ by
-  a factor of two by chance in about one case in five: the polish replaces the
-  constraint estimate only on clear evidence that it is the tighter one, as on
-  near-planar scenes, where the first-order whitening of the constraints fails.
+  a factor of two by chance in about one case in five: without a triplet gained,
+  the polish replaces the constraint estimate only on clear evidence that it is
+  the tighter one.
 
 Before any adjustment: where every tensor already agrees with the constraint
 estimate (the polish cannot add triplets, and starts at its optimum's first-order
