@@ -66,7 +66,7 @@ PARALLAX_PERCENTILE = 75.0
 #: The percentile is small only when a plane holds more than three quarters of the
 #: tracks, which 100 four-point samples find with probability above 0.9999; in a scene
 #: with no dominant plane RANSAC runs to its limit, so the limit is the cost.
-PARALLAX_MAX_TRACKS = 150
+PARALLAX_MAX_TRACKS = 300
 PARALLAX_RANSAC_ITERATIONS = 100
 
 
