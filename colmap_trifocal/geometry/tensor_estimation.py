@@ -380,21 +380,27 @@ def _refine(
 
 
 def calibrated_hypothesis(
-    x: np.ndarray, threshold: float, pnp_iterations: int = 100
+    x: np.ndarray, threshold: float, pnp_iterations: int = 100, essential_iterations: int = 1000
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Cameras ``[R2|t2]``, ``[R3|t3]`` of a triplet from prior-normalised tracks x (3, n, 2).
 
     Views 1-2: essential matrix (OpenCV 5-point RANSAC) and the cheirality check;
     view 3: PnP RANSAC (SQPnP) on the tracks triangulated from views 1-2.
     ``threshold`` is the inlier threshold in normalised units (pixels / focal);
-    ``pnp_iterations`` bounds the PnP RANSAC (which runs to it where few tracks fit:
-    at a wrong focal length).
+    ``pnp_iterations`` and ``essential_iterations`` bound the two RANSACs (which run
+    to their bounds where few tracks fit: at a wrong focal length).
     Returns None where OpenCV finds no solution.
     """
     identity = np.eye(3)
     x1, x2, x3 = (np.ascontiguousarray(x[view]) for view in range(3))
     E, mask = cv2.findEssentialMat(
-        x1, x2, identity, method=cv2.RANSAC, prob=0.999, threshold=threshold
+        x1,
+        x2,
+        identity,
+        method=cv2.RANSAC,
+        prob=0.999,
+        threshold=threshold,
+        maxIters=essential_iterations,
     )
     if E is None or E.shape != (3, 3):
         return None

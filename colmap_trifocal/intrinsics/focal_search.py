@@ -49,11 +49,12 @@ COARSE_RATIO = 1.25
 #: Candidates of the fine grid, spanning one coarse step either side of the coarse
 #: minimum (a ratio of 1.057 between neighbours).
 FINE_STEPS = 9
-#: PnP RANSAC iterations on the coarse grid: far from the focal length few tracks fit
-#: and RANSAC runs to its limit; near it, it stops after a few samples anyway.
-COARSE_PNP_ITERATIONS = 30
-#: Triplets the coarse grid uses at most (the first: the best matched).
-COARSE_TRIPLETS: int | None = None  # all: fewer moved the turntable's local minima
+#: RANSAC iterations (PnP, essential matrix) on the coarse grid: far from the focal
+#: length few tracks fit and RANSAC runs to its limit; near it, it stops after a few
+#: samples anyway.
+COARSE_ITERATIONS = (30, 30)
+#: ... and on the fine grid and at the start.
+FINE_ITERATIONS = (100, 1000)
 #: Without an image size: candidates relative to the start (the former 0.5–2× grid).
 SEARCH_FACTORS = np.geomspace(0.5, 2.0, 13)
 #: The cost curve is decisive when its minimum is interior and the cost one coarse
@@ -136,6 +137,7 @@ def hypothesis_costs(
     principal_point: np.ndarray,
     threshold_px: float,
     pnp_iterations: int = 100,
+    essential_iterations: int = 1000,
 ) -> np.ndarray:
     """Cost (m,) of each candidate focal length (m,) for one triplet's tracks (3, n, 2).
 
@@ -150,7 +152,9 @@ def hypothesis_costs(
     for index, focal in enumerate(focals):
         K = intrinsics_matrix(np.array([focal, focal, *principal_point]))
         x = (homogeneous @ np.linalg.inv(K).T)[..., :2]
-        cameras = calibrated_hypothesis(x, threshold_px / focal, pnp_iterations)
+        cameras = calibrated_hypothesis(
+            x, threshold_px / focal, pnp_iterations, essential_iterations
+        )
         if cameras is not None:
             errors = transfer_errors(x, *cameras, np.array([focal, focal]))
             costs[index] = np.minimum(errors, threshold2).mean()
@@ -207,12 +211,9 @@ def search_focal(
         subsets.append(x[:, rng.choice(n, size=min(n, max_tracks), replace=False)])
 
     def evaluate(
-        focals: np.ndarray, count: int, pnp_iterations: int = 100, triplets: int | None = None
+        focals: np.ndarray, count: int, iterations: tuple[int, int] = (100, 1000)
     ) -> np.ndarray:
-        jobs = [
-            (x[:, :count], focals, principal_point, threshold_px, pnp_iterations)
-            for x in subsets[:triplets]
-        ]
+        jobs = [(x[:, :count], focals, principal_point, threshold_px, *iterations) for x in subsets]
         return np.array(map_jobs(_costs_job, jobs, workers, "focal search", progress))
 
     if image_size is None:
@@ -226,14 +227,12 @@ def search_focal(
         return result
     low, high = focal_range(*image_size)
     coarse = np.geomspace(low, high, int(np.ceil(np.log(high / low) / np.log(COARSE_RATIO))) + 1)
-    coarse_costs = evaluate(
-        coarse, max(max_tracks // 2, 1), COARSE_PNP_ITERATIONS, COARSE_TRIPLETS
-    ).sum(axis=0)
+    coarse_costs = evaluate(coarse, max(max_tracks // 2, 1), COARSE_ITERATIONS).sum(axis=0)
     best = int(np.argmin(coarse_costs))
     ratio = coarse[1] / coarse[0]
     fine = coarse[best] * ratio ** np.linspace(-1.0, 1.0, FINE_STEPS)
-    per_triplet = evaluate(fine, max_tracks)
-    start_cost = float(evaluate(np.array([focal0]), max_tracks).sum())
+    per_triplet = evaluate(fine, max_tracks, FINE_ITERATIONS)
+    start_cost = float(evaluate(np.array([focal0]), max_tracks, FINE_ITERATIONS).sum())
     all_focals = np.concatenate([coarse, fine, [focal0]])
     all_costs = np.concatenate([coarse_costs, per_triplet.sum(axis=0), [start_cost]])
     order = np.argsort(all_focals)
