@@ -395,13 +395,10 @@ def polish_intrinsics(
 
     Returns None when the model is not expressible, no triplet agrees, or Ceres fails.
     """
-    setup = pycolmap_camera_setup(model)
-    if setup is None or not tensors:
+    start_values = _camera_start(model, estimate)
+    if start_values is None or not tensors:
         return None
-    camera_model, refine_focal, refine_principal_point = setup
-    intrinsics = np.asarray(estimate, dtype=float).copy()
-    if camera_model == "SIMPLE_PINHOLE":
-        intrinsics[1] = intrinsics[0]
+    camera_model, refine_focal, refine_principal_point, intrinsics = start_values
     limit = tau**2
     observed = observed_tracks(tensors, tracks, start)
     shared = _shared_camera(observed, start, intrinsics, camera_model, size)
@@ -470,13 +467,10 @@ def predicted_jackknife_std(
     step per image group left out. Milliseconds per tensor; what the polish would
     reach differs by its further iterations. None where it cannot be formed.
     """
-    setup = pycolmap_camera_setup(model)
-    if setup is None or not tensors:
+    start_values = _camera_start(model, estimate)
+    if start_values is None or not tensors:
         return None
-    camera_model, refine_focal, refine_principal_point = setup
-    intrinsics = np.asarray(estimate, dtype=float).copy()
-    if camera_model == "SIMPLE_PINHOLE":
-        intrinsics[1] = intrinsics[0]
+    camera_model, refine_focal, refine_principal_point, intrinsics = start_values
     parts, groups = [], []
     for tensor in tensors:
         pixels = _inlier_pixels(tensor, tracks)
@@ -534,6 +528,19 @@ def _inlier_pixels(
     if n > MAX_TRACKS:
         pixels = pixels[:, np.linspace(0, n - 1, MAX_TRACKS).round().astype(int)]
     return pixels
+
+
+def _camera_start(model: Model, estimate: np.ndarray) -> tuple[str, bool, bool, np.ndarray] | None:
+    """The shared camera's setup (:func:`pycolmap_camera_setup`) and its starting
+    (fx, fy, cx, cy) in pixels (fy = fx for a single focal length); None where
+    pycolmap cannot express the model."""
+    setup = pycolmap_camera_setup(model)
+    if setup is None:
+        return None
+    intrinsics = np.asarray(estimate, dtype=float).copy()
+    if setup[0] == "SIMPLE_PINHOLE":
+        intrinsics[1] = intrinsics[0]
+    return (*setup, intrinsics)
 
 
 def _free_parameters(
