@@ -63,11 +63,11 @@ PLANE_THRESHOLD_PX = 3.0
 #: Percentile of the tracks' distances from that plane that :func:`plane_parallax` reports.
 PARALLAX_PERCENTILE = 75.0
 #: Tracks (evenly spaced) and RANSAC iterations :func:`plane_parallax` uses per pair.
-#: The percentile is small only when a plane holds more than three quarters of the
-#: tracks, which 100 four-point samples find with probability above 0.9999; in a scene
-#: with no dominant plane RANSAC runs to its limit, so the limit is the cost.
+#: The ranking of candidate triplets follows the parallax closely: with 100
+#: iterations, or 150 tracks, the 11° turntable (seed 2) and the 10° ring picked
+#: weaker triplets (docs/accuracy.md).
 PARALLAX_MAX_TRACKS = 300
-PARALLAX_RANSAC_ITERATIONS = 100
+PARALLAX_RANSAC_ITERATIONS = 500
 
 
 @dataclass(frozen=True)
