@@ -1,5 +1,5 @@
 """The calibration's stages and what they reuse: per-stage seconds, carried-over tensors,
-spread track subsets, the polish's information on the shared camera."""
+the polish's information on the shared camera."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from colmap_trifocal import CalibrationOptions, calibrate_contents
 from colmap_trifocal.cli import main
 from colmap_trifocal.common.bundle_adjustment import bundle_adjustment_options
 from colmap_trifocal.common.timing import STAGES
-from colmap_trifocal.geometry.tensor_estimation import estimate_triplet_tensor, spread_order
+from colmap_trifocal.geometry.tensor_estimation import estimate_triplet_tensor
 from colmap_trifocal.geometry.trifocal import intrinsics_matrix
 from colmap_trifocal.intrinsics.bundle_information import reduced_information
 from colmap_trifocal.intrinsics.selfcalibration import ConstraintProblem, intrinsics_to_theta
@@ -54,19 +54,6 @@ def test_tensor_carried_to_a_new_start_equals_the_one_estimated_there() -> None:
         np.testing.assert_allclose(after, before, rtol=1e-7)
         np.testing.assert_allclose(again, after, rtol=1e-3)
     assert np.isclose(np.linalg.norm(carried.tensor), 1.0)
-
-
-def test_spread_order_covers_the_image_first() -> None:
-    rng = np.random.default_rng(0)
-    points = rng.random((2000, 2)) ** 4  # most tracks crowd one corner
-    order = spread_order(points, np.random.default_rng(1), cells=8)
-    assert sorted(order) == list(range(2000))
-    cells = np.minimum((points / points.max(axis=0) * 8).astype(int), 7)
-    occupied = {tuple(c) for c in cells}
-    first = {tuple(c) for c in cells[order[: len(occupied)]]}
-    assert first == occupied  # one track of every occupied cell before any second one
-    random_prefix = {tuple(c) for c in cells[rng.permutation(2000)[: len(occupied)]]}
-    assert len(random_prefix) < len(occupied)
 
 
 def _one_triplet_reconstruction(scene, views=VIEWS):

@@ -17,7 +17,7 @@
      5-point solver nor PnP is degenerate for planes, so this hypothesis wins
      there, and the projective refinement removes the prior's bias.
 3. The best hypothesis is refined: its inliers (at most ``max_refined_tracks`` of
-   them, a subset spread over view 1, :func:`spread_order`) by three-view
+   them, a seeded random subset) by three-view
    projective bundle adjustment (:mod:`.projective_ba`), inliers re-selected with
    the refined cameras and refined once more; then on to convergence
    (``final_ba_tolerance``). With ``second_start`` the calibrated hypothesis is
@@ -67,9 +67,8 @@ class TensorEstimationOptions:
     max_ba_iterations: int = 30
     #: Tracks on which the hypotheses are scored (a random subset).
     max_scored_tracks: int = 500
-    #: Tracks used by the bundle adjustment: a subset of the inliers spread over
-    #: view 1 (:func:`spread_order`). The covariance passed on accounts for how
-    #: many were used.
+    #: Tracks used by the bundle adjustment (a random subset of the inliers).
+    #: The covariance passed on accounts for how many were used.
     max_refined_tracks: int = 500
     #: A triplet is planar-dominant when this share of its tracks fits one plane's
     #: homographies (:mod:`.planarity`; e.g. ``PLANAR_SHARE`` = 0.5); it then gets a
@@ -179,27 +178,6 @@ def _cross_with_point(point: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.stack([py * v2 - v1, v0 - px * v2, px * v1 - py * v0], axis=-1)
 
 
-def spread_order(points: np.ndarray, rng: np.random.Generator, cells: int = 8) -> np.ndarray:
-    """An order of the tracks (n,) whose every prefix is spread over the image.
-
-    ``points`` (n, 2) are the tracks in view 1 (any units). Their bounding box is
-    cut into ``cells`` x ``cells`` cells; the order takes one random track of every
-    occupied cell, then a second, and so on, so the first k tracks cover the image
-    as evenly as the tracks allow. Reproducible for a seeded generator.
-    """
-    n = len(points)
-    low, high = points.min(axis=0), points.max(axis=0)
-    scaled = (points - low) / np.maximum(high - low, 1e-12)
-    cell = np.minimum((scaled * cells).astype(np.int64), cells - 1)
-    cell_id = cell[:, 0] * cells + cell[:, 1]
-    shuffled = rng.permutation(n)
-    by_cell = shuffled[np.argsort(cell_id[shuffled], kind="stable")]
-    sorted_cells = cell_id[by_cell]
-    first = np.searchsorted(sorted_cells, sorted_cells, side="left")
-    rank = np.arange(n) - first  # position of each track within its cell
-    return by_cell[np.lexsort((sorted_cells, rank))]
-
-
 def estimate_triplet_tensor(
     image_ids: tuple[int, int, int],
     x_px: np.ndarray,
@@ -271,7 +249,7 @@ def estimate_triplet_tensor(
         and (planar or (options.calibrated_start and second_start))
     ):
         starts.append(calibrated)
-    order = spread_order(x[0], rng)
+    order = rng.permutation(n)
     refined = [
         _refine(x, P2, P3, pixel_scale, order, threshold2, options, BA_TOLERANCE)
         for P2, P3 in starts
