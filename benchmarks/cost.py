@@ -20,7 +20,9 @@ Inputs (``--inputs``, comma-separated):
 * ``straight``: a synthetic straight drive, ±5 % prior;
 * ``telephoto``: a synthetic 10° ring from COLMAP's default camera;
 * ``kitti``: the shared KITTI drive (51 frames), from COLMAP's default camera;
-* ``strecha30``: a 30-image synthetic scene with the Strecha camera (3072x2048);
+* ``rendered30``: the 30 photo-like 3072x2048 images of ``render_photos.py`` (Strecha
+  camera), SIFT at 1600 px, from COLMAP's default camera: the 30-image scene that
+  ``calibrate`` is compared with mapping on;
 * ``synthetic300``, ``synthetic1000``: 300 and 1000 images (``scaling.py``'s knn graph).
 
     python benchmarks/cost.py [--inputs demo,fountain,...] [--seed 0] [--mapping]
@@ -58,7 +60,7 @@ from benchlib import quiet_stderr  # noqa: E402
 STAGES = ("read", "tracks", "focal_search", "tensors", "solve", "polish", "assessment")
 DEFAULT_INPUTS = (
     "demo,fountain,herz-jesus,fountain-default,herz-jesus-default,facade,straight,"
-    "telephoto,kitti,strecha30,synthetic300,synthetic1000"
+    "telephoto,kitti,rendered30,synthetic300,synthetic1000"
 )
 STRECHA = {"fountain": "fountain-P11", "herz-jesus": "Herz-Jesus-P8"}
 
@@ -97,6 +99,24 @@ def kitti_database(out: Path) -> tuple[Path, np.ndarray]:
         with quiet_stderr():
             build_database(scene.image_dir, path, [v.name for v in scene.views])
     return path, scene.mean_intrinsics()
+
+
+def rendered_database(out: Path) -> tuple[Path, np.ndarray]:
+    """A cached SIFT database of ``render_photos.py``'s 30 images and their true K."""
+    folder = out / "rendered30"
+    truth_file = folder / "ground_truth.json"
+    if not truth_file.exists():
+        subprocess.run(
+            [sys.executable, str(BENCHMARKS / "render_photos.py"), str(folder), "--images", "30"],
+            check=True,
+            capture_output=True,
+        )
+    path = folder / "database.db"
+    if not path.exists():
+        with quiet_stderr():
+            build_database(folder / "images", path)
+    intrinsics = json.loads(truth_file.read_text())["intrinsics"]
+    return path, np.array([intrinsics[name] for name in ("fx", "fy", "cx", "cy")])
 
 
 def synthetic_database(out: Path, images: int) -> tuple[Path, np.ndarray]:
@@ -140,9 +160,12 @@ def calibrate_case(name: str, out: Path, seed: int) -> tuple[object, np.ndarray,
         path, truth = kitti_database(out)
         options.no_prior = True
         return calibrate_database(path, options)[0], truth, path
-    if name.startswith("synthetic") or name == "strecha30":
-        images = 30 if name == "strecha30" else int(name.removeprefix("synthetic"))
-        path, truth = synthetic_database(out, images)
+    if name == "rendered30":
+        path, truth = rendered_database(out)
+        options.no_prior = True
+        return calibrate_database(path, options)[0], truth, path
+    if name.startswith("synthetic"):
+        path, truth = synthetic_database(out, int(name.removeprefix("synthetic")))
         return calibrate_database(path, options)[0], truth, path
     scenes = {
         "facade": lambda: facade_scene(relief=0.01, seed=seed, noise_px=1.0, num_points=1000),
