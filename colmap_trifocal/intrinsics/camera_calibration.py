@@ -83,6 +83,7 @@ def calibrate_camera(
     clock = StageClock()
     with clock("read"):
         data = camera_input(contents, camera, image_ids, options)
+    read_clock = copy.deepcopy(clock)
     results: dict[str, CameraCalibration] = {}
     trifocal = [m for m in methods if m != "fundamental"]
     if trifocal:
@@ -98,7 +99,10 @@ def calibrate_camera(
                 data, tracks, search, estimator, method, options, method_clock
             )
     if "fundamental" in methods:
-        results["fundamental"] = calibrate_fundamental(data)
+        with read_clock("solve"):
+            results["fundamental"] = calibrate_fundamental(data)
+        results["fundamental"].seconds = read_clock.total
+        results["fundamental"].stage_seconds = read_clock.as_dict()
     return {method: results[method] for method in methods}
 
 
@@ -208,7 +212,12 @@ def _attempt(
         tensors = estimator.at(candidate.start, previous)
     attempt = _solved(candidate, tensors, data, estimator, method, options, clock)
     point = restart_point(attempt.fallback, tensors.start)
-    if options.restart and method != "direct" and moved_far(point, tensors.start):
+    if (
+        options.restart
+        and method != "direct"
+        and moved_far(point, tensors.start)
+        and estimator.can_afford(len(tensors.by_triplet))
+    ):
         logger.info(
             "camera %d: estimate far from the start; estimating the disagreeing tensors again",
             data.camera.camera_id,

@@ -29,8 +29,8 @@ from .options import CalibrationOptions
 from .selfcalibration import ConstraintProblem, intrinsics_to_theta
 from .triplet_selection import CameraTracks
 
-#: Refinement starts per triplet at most over one camera's calibration (the first
-#: start's one or two, a restart's, up to three other starts' and their second starts).
+#: Refinement starts per triplet over one camera's calibration: a restart, another
+#: start or second starts are run only while they fit (the first start always runs).
 MAX_STARTS_PER_TRIPLET = 8
 
 
