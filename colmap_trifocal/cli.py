@@ -22,6 +22,7 @@ import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 from . import __version__
 from .common.arguments import seed
@@ -484,7 +485,7 @@ class _InterruptWatch:
             self.signum = signum
         raise KeyboardInterrupt
 
-    def install(self) -> dict[int, object]:
+    def install(self) -> dict[int, Any]:
         """Install for every signal not ignored (``nohup``); the previous handlers."""
         return {
             signum: signal.signal(signum, self)

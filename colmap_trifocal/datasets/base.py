@@ -40,7 +40,7 @@ class GroundTruthView:
         object.__setattr__(self, "intrinsics", _frozen(self.intrinsics, (4,)))
         if (self.rotation is None) != (self.translation is None):
             raise ValueError(f"{self.name}: give both rotation and translation, or neither")
-        if self.rotation is not None:
+        if self.rotation is not None and self.translation is not None:
             object.__setattr__(self, "rotation", _frozen(self.rotation, (3, 3)))
             object.__setattr__(self, "translation", _frozen(self.translation, (3,)))
 

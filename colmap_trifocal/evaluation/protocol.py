@@ -254,7 +254,7 @@ def _pycolmap_baseline(task: RunTask, method: str, common: dict) -> RunRecord:
         shutil.copyfile(task.sequence_database, database)
         with pycolmap.Database.open(str(database)) as db:
             (camera,) = db.read_all_cameras()
-            camera.params = np.asarray(task.prior, float)
+            camera.params = np.asarray(task.prior, float).tolist()
             db.update_camera(camera)
         try:
             if method == "calibrate_view_graph":

@@ -149,7 +149,8 @@ def boxplots(records: list[RunRecord], path: Path, title: str = "") -> None:
     for r in records:
         if r.ok:
             key = (r.scene, r.num_images, r.perturbation, r.noise_px)
-            groups[key][r.method].append(float(r.error_percent))
+            if r.error_percent is not None:
+                groups[key][r.method].append(float(r.error_percent))
     keys = sorted(groups, key=_sortable)
     if not keys:
         raise ValueError("no successful run to plot")

@@ -177,7 +177,8 @@ def _reason(exc: CalibrationError) -> str:
 
 def _std_list(std: dict[str, float | None]) -> list[float | None]:
     """A calibration's standard deviations in (fx, fy, cx, cy) order."""
-    return [None if std.get(name) is None else float(std[name]) for name in PARAMETER_NAMES]
+    values = [std.get(name) for name in PARAMETER_NAMES]
+    return [None if value is None else float(value) for value in values]
 
 
 def _pipeline_records(
@@ -307,7 +308,8 @@ def run_synthetic_case(
     )
     extra = {"outlier_ratio": float(outlier_ratio)}
     contents = scene_contents(scene)
-    options = CalibrationOptions(prior=tuple(map(float, prior)), seed=calibration_seed, workers=1)
+    fx, fy, cx, cy = (float(v) for v in prior)
+    options = CalibrationOptions(prior=(fx, fy, cx, cy), seed=calibration_seed, workers=1)
     by_method: dict[str, RunRecord] = {}
     trifocal = tuple(m for m in methods if m in _TRIFOCAL_METHODS)
     if trifocal:

@@ -14,6 +14,7 @@ camera of each group (backup first, one transaction).
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 from ..common.errors import CalibrationError
@@ -39,7 +40,7 @@ from .results import CameraCalibration
 
 def calibrate_database(
     path: Path | str, options: CalibrationOptions | None = None
-) -> list[CameraCalibration]:
+) -> list[GroupCalibration]:
     """Estimate the intrinsics of the cameras of a COLMAP database.
 
     Args:
@@ -65,7 +66,7 @@ def calibrate_database(
     return results
 
 
-def add_read_seconds(results: list[CameraCalibration], seconds: float) -> None:
+def add_read_seconds(results: Sequence[CameraCalibration], seconds: float) -> None:
     """Count reading the database (shared by every group) in each result's ``read`` stage."""
     for result in results:
         result.stage_seconds["read"] = round(result.stage_seconds.get("read", 0.0) + seconds, 4)
@@ -74,7 +75,7 @@ def add_read_seconds(results: list[CameraCalibration], seconds: float) -> None:
 
 
 def updated_cameras(
-    results: list[CameraCalibration], determined_only: bool = True
+    results: Sequence[CameraCalibration], determined_only: bool = True
 ) -> dict[int, CameraInfo]:
     """camera_id -> stored camera with its group's estimate, for every camera of every group.
 
@@ -92,7 +93,7 @@ def updated_cameras(
     return updated
 
 
-def write_calibrations(path: Path | str, results: list[CameraCalibration]) -> int:
+def write_calibrations(path: Path | str, results: Sequence[CameraCalibration]) -> int:
     """Store the estimates in the database at ``path`` (backup first, one transaction).
 
     Every camera id of a group gets the group's estimate. A group the images
@@ -114,14 +115,14 @@ def write_calibrations(path: Path | str, results: list[CameraCalibration]) -> in
 
 def calibrate_contents(
     contents: DatabaseContents, options: CalibrationOptions
-) -> list[CameraCalibration]:
+) -> list[GroupCalibration]:
     """Calibrate the cameras of already-read database contents (see :func:`calibrate_database`)."""
     return calibrate_contents_methods(contents, options, (options.method,))[options.method]
 
 
 def calibrate_contents_methods(
     contents: DatabaseContents, options: CalibrationOptions, methods: tuple[str, ...]
-) -> dict[str, list[CameraCalibration]]:
+) -> dict[str, list[GroupCalibration]]:
     """Several methods on the same contents; the trifocal variants share one set of tensors.
 
     Each result's ``seconds`` is what that method alone would take (the shared
@@ -214,7 +215,7 @@ def calibrate_groups(
             results[method].append(GroupCalibration.of(result, cameras, source))
     if not results[methods[0]] and first_error is not None:
         raise first_error
-    for group in skipped:
-        logger.warning("%s", group.message())
+    for skip in skipped:
+        logger.warning("%s", skip.message())
     skipped.sort(key=lambda g: g.camera_id)
     return results, skipped

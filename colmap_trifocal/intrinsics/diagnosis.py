@@ -50,7 +50,7 @@ def relative_motion(x1: np.ndarray, x2: np.ndarray) -> tuple[np.ndarray, np.ndar
     if E is None or E.shape != (3, 3):
         return None
     _, R, t, _ = cv2.recoverPose(E, x1, x2, np.eye(3), mask=mask.copy())
-    return R, t.ravel() / max(np.linalg.norm(t), 1e-12)
+    return R, t.ravel() / max(float(np.linalg.norm(t)), 1e-12)
 
 
 #: Consecutive image pairs :func:`moves_forward` looks at (evenly spread).

@@ -325,7 +325,9 @@ def _calibrate(
         return _residuals_and_jacobian(x, g, sqrt_w, basis, single_focal, form, False)[0]
 
     def jac(x: np.ndarray) -> np.ndarray:
-        return _residuals_and_jacobian(x, g, sqrt_w, basis, single_focal, form, True)[1]
+        jacobian = _residuals_and_jacobian(x, g, sqrt_w, basis, single_focal, form, True)[1]
+        assert jacobian is not None
+        return jacobian
 
     sol = least_squares(
         fun,
@@ -438,7 +440,10 @@ def calibrate_fundamental(data: CameraInput) -> CameraCalibration:
         camera_id=camera.camera_id,
         model=camera.model,
         method="fundamental",
-        **dict(zip(PARAMETER_NAMES, map(float, result.intrinsics), strict=True)),
+        fx=float(result.intrinsics[0]),
+        fy=float(result.intrinsics[1]),
+        cx=float(result.intrinsics[2]),
+        cy=float(result.intrinsics[3]),
         std={name: None for name in PARAMETER_NAMES},
         observable={name: bool(result.success) for name in PARAMETER_NAMES},
         num_triplets=0,

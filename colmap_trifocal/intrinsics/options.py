@@ -113,7 +113,7 @@ def parse_prior(text: str) -> tuple[float, float, float, float]:
         raise CalibrationError(
             f"invalid --prior {text!r}: values must be finite and focal lengths positive"
         )
-    return values  # type: ignore[return-value]
+    return values
 
 
 def check_camera_values(camera: CameraInfo, uses_stored: bool) -> None:

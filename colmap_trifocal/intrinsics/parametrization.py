@@ -122,9 +122,9 @@ HELD = Model("held", cx=False, cy=False)
 
 def candidate_models(base: Model) -> list[Model]:
     """Every model that estimates a subset of ``base``, largest first (base included)."""
+    focals: tuple[FocalMode, ...] = ("free", "tied", "held")
     models = [
-        Model(focal, cx, cy)
-        for focal, cx, cy in product(("free", "tied", "held"), (True, False), (True, False))
+        Model(focal, cx, cy) for focal, cx, cy in product(focals, (True, False), (True, False))
     ]
     return sorted((m for m in models if base.includes(m)), key=lambda m: -m.dimension)
 

@@ -107,10 +107,10 @@ def polish(
     skip = not_worth_it(tensors, tracks, start, estimate, fallback, focal_scale)
     if skip:
         logger.info("camera %d: bundle adjustment of the triplets not run: %s", camera_id, skip)
-        summary = {"used": False, "agreeing": None, "constraints": constraints, "rejected": skip}
-        return Polished(estimate, fallback.relative_std, agreeing, summary)
+        not_run = {"used": False, "agreeing": None, "constraints": constraints, "rejected": skip}
+        return Polished(estimate, fallback.relative_std, agreeing, not_run)
     result = polish_intrinsics(tensors, tracks, start, estimate, model, size, tau)
-    summary = {
+    summary: dict[str, object] = {
         "used": False,
         "agreeing": None if result is None else int(result.agreeing.sum()),
         "constraints": constraints,

@@ -523,7 +523,7 @@ def _inlier_pixels(
     tensor: TripletTensor, tracks: dict[tuple[int, int, int], np.ndarray]
 ) -> np.ndarray:
     """A tensor's inlier tracks (3, n, 2) in pixels, at most ``MAX_TRACKS`` evenly spaced."""
-    pixels = tracks[tuple(tensor.image_ids)][:, tensor.inliers]
+    pixels = tracks[tensor.image_ids][:, tensor.inliers]
     n = pixels.shape[1]
     if n > MAX_TRACKS:
         pixels = pixels[:, np.linspace(0, n - 1, MAX_TRACKS).round().astype(int)]

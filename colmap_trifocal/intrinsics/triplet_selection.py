@@ -42,10 +42,7 @@ class CameraTracks:
 
     def by_images(self) -> dict[tuple[int, int, int], np.ndarray]:
         """Triplet image ids -> its tracks (3, n, 2), pixels."""
-        return {
-            tuple(triplet.image_ids): x
-            for triplet, x in zip(self.triplets, self.tracks, strict=True)
-        }
+        return {triplet.image_ids: x for triplet, x in zip(self.triplets, self.tracks, strict=True)}
 
 
 def select_camera_triplets(

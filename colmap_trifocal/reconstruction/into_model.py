@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
@@ -113,7 +114,7 @@ def set_intrinsics(
                 f"{target.width}x{target.height}, the database's a {camera.model} "
                 f"{camera.width}x{camera.height}: is the model from this database?"
             )
-        target.params = camera.params
+        target.params = np.asarray(camera.params, float).tolist()
         written.append(camera_id)
     if not written:
         raise CalibrationError(

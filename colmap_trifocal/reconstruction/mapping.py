@@ -408,7 +408,10 @@ def measure_pairs(
                 camera1, points1, camera2, points2, geometry
             ):
                 continue
-            translation = np.asarray(geometry.cam2_from_cam1.translation, dtype=float)
+            pose = geometry.cam2_from_cam1
+            if pose is None:
+                continue
+            translation = np.asarray(pose.translation, dtype=float)
             norm = float(np.linalg.norm(translation))
             results.append(
                 InitialPair(

@@ -235,7 +235,7 @@ def scene_geometry(
         frustum(
             centres[k],
             world_from_cam[k],
-            image_corner_rays(reconstruction.image(image_id).camera),
+            image_corner_rays(reconstruction.cameras[reconstruction.image(image_id).camera_id]),
             frustum_scale,
             colors[k],
         )
@@ -257,7 +257,8 @@ def _vertices(geometry: open3d.geometry.Geometry) -> np.ndarray:
         return np.asarray(geometry.points)
     if isinstance(geometry, o3d.geometry.TriangleMesh):
         return np.asarray(geometry.vertices)
-    return np.asarray(geometry.get_axis_aligned_bounding_box().get_box_points())
+    box = geometry.get_axis_aligned_bounding_box()  # type: ignore[attr-defined]
+    return np.asarray(box.get_box_points())
 
 
 def view_for(

@@ -51,6 +51,8 @@ from ..intrinsics.results import PARAMETER_NAMES
 from .mapping import (
     MAPPERS,
     REFINE_CHOICES,
+    InitialPair,
+    MappingAttempt,
     camera_intrinsics,
     describe_attempts,
     global_mapping,
@@ -212,7 +214,7 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
         reconstruction = given_model
         for camera_id, camera in updated.items():
             if camera_id in reconstruction.cameras:
-                reconstruction.cameras[camera_id].params = camera.params
+                reconstruction.cameras[camera_id].params = np.asarray(camera.params, float).tolist()
     else:
         with tempfile.TemporaryDirectory(dir=workspace) as tmp:
             _stage(f"mapping (pycolmap {options.mapper})", options.progress)
@@ -225,7 +227,8 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
                     seed=options.seed,
                     refine_distortion=refine["distortion"],
                 )
-                attempts, seeded = [], None
+                attempts: list[MappingAttempt] = []
+                seeded: InitialPair | None = None
             else:
                 reconstruction, attempts, seeded = incremental_mapping_with_retries(
                     database,
@@ -317,7 +320,7 @@ def seed_candidate_pairs(
         for triplet in kept[:max_triplets]:
             a, b, c = (int(i) for i in triplet.image_ids)
             pairs += [(a, b), (b, c), (a, c)]
-    return list(dict.fromkeys(tuple(sorted(p)) for p in pairs))
+    return list(dict.fromkeys((min(p), max(p)) for p in pairs))
 
 
 def _stage(message: str, progress: bool) -> None:

@@ -76,7 +76,7 @@ def write_database(
             camera = pycolmap.Camera.create_from_model_name(
                 camera_id, info.model, 1.0, info.width, info.height
             )
-            camera.params = params
+            camera.params = np.asarray(params, float).tolist()
             db.write_camera(camera, use_camera_id=True)
             rig = pycolmap.Rig(rig_id=camera_id)
             rig.add_ref_sensor(camera.sensor_id)

@@ -80,7 +80,7 @@ def make_demo_database(
         pycolmap.synthesize_noise(noise, reconstruction, db)
         corrupt_verified_matches(db, 1.0 - inlier_ratio, rng)
         camera = db.read_all_cameras()[0]
-        camera.params = prior
+        camera.params = prior.tolist()
         db.update_camera(camera)
     return truth, prior
 

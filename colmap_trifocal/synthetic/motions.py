@@ -24,6 +24,8 @@ COLMAP (centre of the top-left pixel at (0.5, 0.5)). Lengths in metres.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from ..geometry.trifocal import intrinsics_matrix
@@ -282,7 +284,7 @@ def motion_scene(
     motion: str, num_images: int = 8, noise_px: float = 0.5, seed: int = 0
 ) -> SyntheticScene:
     """One of :data:`MOTIONS` by name."""
-    makers = {
+    makers: dict[str, Callable[..., SyntheticScene]] = {
         "general": general_motion,
         "planar": planar_orbit,
         "forward": forward_driving,

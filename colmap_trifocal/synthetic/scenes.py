@@ -376,7 +376,11 @@ def triplet_tensors(
     tensors = []
     for views in triplets:
         tensor = estimate_triplet_tensor(
-            tuple(int(v) for v in views), scene.observations[list(views)], K0, rng, options
+            (int(views[0]), int(views[1]), int(views[2])),
+            scene.observations[list(views)],
+            K0,
+            rng,
+            options,
         )
         if tensor is not None:
             tensors.append(tensor)
