@@ -37,6 +37,7 @@ from itertools import chain, combinations
 
 import cv2
 import numpy as np
+from scipy.stats import spearmanr
 
 from ..common.parallel import map_jobs
 
@@ -155,9 +156,10 @@ def is_sequence(graph: MatchGraph, image_ids: list[int], min_matches: int = 15) 
     gaps, counts = np.array(pairs, dtype=float).T
     if np.percentile(gaps, 90) <= SEQUENCE_MAX_GAP * len(image_ids):
         return True
-    gap_rank = np.argsort(np.argsort(gaps))
-    count_rank = np.argsort(np.argsort(counts))
-    correlation = np.corrcoef(gap_rank, count_rank)[0, 1]
+    if np.ptp(gaps) == 0 or np.ptp(counts) == 0:  # no order to correlate
+        return False
+    # Spearman's rank correlation with tied gaps (1, 2, 3, ... frames) at their mean rank.
+    correlation = spearmanr(gaps, counts).statistic
     return bool(correlation <= SEQUENCE_CORRELATION)
 
 
