@@ -70,6 +70,39 @@ def _transfer(H: np.ndarray, points: np.ndarray) -> np.ndarray:
         return y[:, :2] / y[:, 2:3]
 
 
+def plane_homography(
+    x1: np.ndarray,
+    x2: np.ndarray,
+    threshold: float,
+    iterations: int = 2000,
+    confidence: float = 0.995,
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """The homography (3, 3) most of the points x1 -> x2 (n, 2) fit (OpenCV RANSAC), and
+    which fit it (n,) bool; (None, all False) when OpenCV finds none.
+
+    ``threshold`` is the inlier distance in the points' units; every caller passes the
+    one its question needs (pixels for the tracks' parallax and the diagnosis, normalised
+    units for the plane + parallax start).
+    """
+    H, mask = cv2.findHomography(
+        np.ascontiguousarray(x1, dtype=np.float64),
+        np.ascontiguousarray(x2, dtype=np.float64),
+        cv2.RANSAC,
+        threshold,
+        maxIters=iterations,
+        confidence=confidence,
+    )
+    if H is None or mask is None:
+        return None, np.zeros(len(x1), dtype=bool)
+    return H, mask.ravel() > 0
+
+
+def transfer_distances(H: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    """Distances (n,) of points x2 from the images of x1 under H (inf where undefined)."""
+    distance = np.linalg.norm(_transfer(H, x1) - x2, axis=1)
+    return np.nan_to_num(distance, nan=np.inf)
+
+
 def dominant_plane(x: np.ndarray, threshold: float) -> DominantPlane | None:
     """The plane most tracks x (3, n, 2) lie on (OpenCV RANSAC homographies 1->2, 1->3).
 
@@ -80,13 +113,10 @@ def dominant_plane(x: np.ndarray, threshold: float) -> DominantPlane | None:
     x1, x2, x3 = (np.ascontiguousarray(x[view], dtype=np.float64) for view in range(3))
     if len(x1) < 8:
         return None
-    H2, mask2 = cv2.findHomography(x1, x2, cv2.RANSAC, threshold, maxIters=2000, confidence=0.999)
-    if H2 is None or mask2 is None:
+    H2, first = plane_homography(x1, x2, threshold, confidence=0.999)
+    if H2 is None or first.sum() < 4:
         return None
-    first = mask2.ravel() > 0
-    if first.sum() < 4:
-        return None
-    H3, _ = cv2.findHomography(x1[first], x3[first], cv2.RANSAC, threshold, maxIters=2000)
+    H3, _ = plane_homography(x1[first], x3[first], threshold)
     if H3 is None:
         return None
     # Relief within the threshold tilts a homography fitted to all inliers; refit

@@ -35,11 +35,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from itertools import chain, combinations
 
-import cv2
 import numpy as np
 from scipy.stats import spearmanr
 
 from ..common.parallel import map_jobs
+from .planarity import plane_homography, transfer_distances
 
 Pair = tuple[int, int]
 
@@ -344,23 +344,14 @@ def plane_parallax(points: np.ndarray) -> float:
     n = points.shape[1]
     if n > PARALLAX_MAX_TRACKS:  # evenly spaced: deterministic, and RANSAC cost bounded
         points = points[:, np.linspace(0, n - 1, PARALLAX_MAX_TRACKS).round().astype(int)]
-    ones = np.ones((points.shape[1], 1))
     parallax = 0.0
     for a, b in ((0, 1), (0, 2), (1, 2)):
-        H, _ = cv2.findHomography(
-            points[a],
-            points[b],
-            cv2.RANSAC,
-            PLANE_THRESHOLD_PX,
-            maxIters=PARALLAX_RANSAC_ITERATIONS,
-            confidence=0.999,
+        H, _ = plane_homography(
+            points[a], points[b], PLANE_THRESHOLD_PX, PARALLAX_RANSAC_ITERATIONS, 0.999
         )
         if H is None:
             continue
-        mapped = np.concatenate([points[a], ones], axis=1) @ H.T
-        with np.errstate(divide="ignore", invalid="ignore"):
-            distance = np.linalg.norm(mapped[:, :2] / mapped[:, 2:3] - points[b], axis=1)
-        distance = np.nan_to_num(distance, nan=np.inf)
+        distance = transfer_distances(H, points[a], points[b])
         parallax = max(parallax, float(np.percentile(distance, PARALLAX_PERCENTILE)))
     return parallax
 

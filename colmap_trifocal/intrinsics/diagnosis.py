@@ -30,6 +30,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..geometry.planarity import plane_homography
 from ..geometry.trifocal import intrinsics_matrix
 
 MIN_TRACKS = 80
@@ -104,8 +105,8 @@ def homography_fraction(x1: np.ndarray, x2: np.ndarray) -> float:
     """Fraction of the tracks (pixels, (n, 2)) one homography explains within HOMOGRAPHY_PX."""
     if len(x1) < 8:
         return 0.0
-    H, mask = cv2.findHomography(x1, x2, cv2.RANSAC, HOMOGRAPHY_PX)
-    return 0.0 if H is None else float(mask.mean())
+    H, inliers = plane_homography(x1, x2, HOMOGRAPHY_PX)
+    return 0.0 if H is None else float(inliers.mean())
 
 
 def diagnose(tracks: list[np.ndarray], intrinsics: np.ndarray) -> str:
