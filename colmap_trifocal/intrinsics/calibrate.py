@@ -53,7 +53,11 @@ def calibrate_database(
     Raises:
         CalibrationError: bad input (see the message).
     """
-    options = options or CalibrationOptions()
+    options = CalibrationOptions() if options is None else options
+    if not isinstance(options, CalibrationOptions):
+        raise CalibrationError(
+            f"options must be a CalibrationOptions, got {type(options).__name__}"
+        )
     check_options(options)
     path = Path(path)
     clock = time.perf_counter()

@@ -6,10 +6,13 @@ in pixels, COLMAP's pixel convention (centre of the top-left pixel at (0.5, 0.5)
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from numbers import Integral, Real
 
 import numpy as np
 
+from ..common.arguments import MAX_SEED
 from ..common.errors import CalibrationError
 from ..database.camera_groups import GROUPINGS
 from ..database.cameras import (
@@ -86,6 +89,14 @@ class CalibrationOptions:
     #: the constraint solve's. Near-planar triplets, whose whitened
     #: constraints are a poor first-order measure, then count by their likelihood.
     triplet_bundle: bool = True
+
+    def __post_init__(self) -> None:
+        """Refuse values the calibration cannot use, here rather than deep inside it.
+
+        Raises:
+            CalibrationError: one line naming the option (its ``calibrate`` flag).
+        """
+        check_option_values(self)
 
 
 #: Starting focal lengths, as multiples of the image's larger side (see check_prior).
@@ -172,6 +183,67 @@ def default_guess(width: int, height: int) -> np.ndarray:
     """COLMAP's starting intrinsics for an image size: f = 1.2 · max(w, h), centred (pixels)."""
     focal = 1.2 * max(width, height)
     return np.array([focal, focal, width / 2.0, height / 2.0])
+
+
+def _is_integer(value: object) -> bool:
+    """An integer that is not a bool (numpy integers included)."""
+    return isinstance(value, Integral) and not isinstance(value, bool)
+
+
+def check_option_values(options: CalibrationOptions) -> None:
+    """CalibrationError for a value of the wrong type or outside its range.
+
+    The prior is normalised to a tuple of four floats (a list or an array is taken).
+    """
+    if options.method not in METHODS:
+        raise CalibrationError(f"unknown method {options.method!r} (choose from {METHODS})")
+    if options.group not in GROUPINGS:
+        raise CalibrationError(f"unknown --group {options.group!r} (choose from {GROUPINGS})")
+    if not _is_integer(options.seed) or not 0 <= int(options.seed) <= MAX_SEED:
+        raise CalibrationError(
+            f"--seed must be an integer in [0, {MAX_SEED}], got {options.seed!r}"
+        )
+    if options.prior is not None:
+        values = options.prior
+        if isinstance(values, str | bytes) or not hasattr(values, "__len__") or len(values) != 4:
+            raise CalibrationError(
+                f"--prior must be four numbers (fx, fy, cx, cy), got {options.prior!r}"
+            )
+        try:
+            prior = tuple(float(v) for v in values)
+        except (TypeError, ValueError):
+            raise CalibrationError(
+                f"--prior must be four numbers (fx, fy, cx, cy), got {options.prior!r}"
+            ) from None
+        if not all(math.isfinite(v) for v in prior) or prior[0] <= 0 or prior[1] <= 0:
+            raise CalibrationError(
+                f"--prior {prior}: values must be finite and focal lengths positive"
+            )
+        options.prior = prior  # type: ignore[assignment]
+    if options.camera_ids is not None and (
+        isinstance(options.camera_ids, str | bytes)
+        or not hasattr(options.camera_ids, "__iter__")
+        or not all(_is_integer(c) for c in options.camera_ids)
+    ):
+        raise CalibrationError(
+            f"--camera-id: a list of integer camera ids, got {options.camera_ids!r}"
+        )
+    if options.max_triplets is not None and (
+        not _is_integer(options.max_triplets) or options.max_triplets < 1
+    ):
+        raise CalibrationError("--max-triplets must be at least 1")
+    for name, value, low in (
+        ("min_tracks", options.min_tracks, 7),
+        ("search_triplets", options.search_triplets, 1),
+    ):
+        if not _is_integer(value) or value < low:
+            raise CalibrationError(f"{name} must be an integer of at least {low}, got {value!r}")
+    if options.workers is not None and (not _is_integer(options.workers) or options.workers < 1):
+        raise CalibrationError(
+            f"workers must be a positive integer or None, got {options.workers!r}"
+        )
+    if not (isinstance(options.tau, Real) and math.isfinite(options.tau) and options.tau > 0):
+        raise CalibrationError(f"tau must be a finite number above 0, got {options.tau!r}")
 
 
 def check_options(options: CalibrationOptions) -> None:
