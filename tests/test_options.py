@@ -42,6 +42,7 @@ def test_bad_option_refused_when_built(values: dict, fragment: str) -> None:
 
 def test_good_options_are_normalised() -> None:
     options = CalibrationOptions(prior=np.array([540, 541, 320, 240]), seed=np.int64(3))
+    assert CalibrationOptions(seed=2380376695).seed == 2380376695  # the evaluation's seeds
     assert options.prior == (540.0, 541.0, 320.0, 240.0)
     assert all(type(v) is float for v in options.prior)
     assert CalibrationOptions(prior=[540, 541, 320.5, 240]).prior == (540.0, 541.0, 320.5, 240.0)

@@ -12,7 +12,6 @@ from numbers import Integral, Real
 
 import numpy as np
 
-from ..common.arguments import MAX_SEED
 from ..common.errors import CalibrationError
 from ..database.camera_groups import GROUPINGS
 from ..database.cameras import (
@@ -183,6 +182,11 @@ def default_guess(width: int, height: int) -> np.ndarray:
     """COLMAP's starting intrinsics for an image size: f = 1.2 · max(w, h), centred (pixels)."""
     focal = 1.2 * max(width, height)
     return np.array([focal, focal, width / 2.0, height / 2.0])
+
+
+#: Seeds of the calibration go to numpy's SeedSequence (64-bit words are plenty; the
+#: command line keeps to ``common.arguments.MAX_SEED`` because mapping passes it to COLMAP).
+MAX_SEED = 2**64 - 1
 
 
 def _is_integer(value: object) -> bool:
