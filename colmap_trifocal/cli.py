@@ -17,7 +17,6 @@ import os
 import signal
 import sys
 import threading
-import time
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -258,13 +257,14 @@ def _check_output(path: Path, option: str) -> None:
 
 def _run_calibrate(args: argparse.Namespace) -> int:
     from .database.camera_groups import format_ids
-    from .database.snapshot import check_writable, read_database
+    from .database.snapshot import check_writable
     from .intrinsics.calibrate import (
         CalibrationOptions,
         add_read_seconds,
         calibrate_groups,
         check_options,
         parse_prior,
+        read_contents,
         updated_cameras,
         write_calibrations,
     )
@@ -303,9 +303,7 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     if args.write:  # refuse a read-only database now, not after the calibration
         check_writable(args.database)
     check_options(options)
-    clock = time.perf_counter()
-    contents = read_database(args.database)
-    read_seconds = time.perf_counter() - clock
+    contents, read_seconds = read_contents(args.database)
     by_method, skipped = calibrate_groups(contents, options, (options.method,))
     results = by_method[options.method]
     add_read_seconds(results, read_seconds)

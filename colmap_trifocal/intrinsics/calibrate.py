@@ -60,14 +60,19 @@ def calibrate_database(
         )
     check_options(options)
     path = Path(path)
-    clock = time.perf_counter()
-    contents = read_database(path)
-    read_seconds = time.perf_counter() - clock
+    contents, read_seconds = read_contents(path)
     results = calibrate_contents(contents, options)
     add_read_seconds(results, read_seconds)
     if options.write:
         write_calibrations(path, results)
     return results
+
+
+def read_contents(path: Path | str) -> tuple[DatabaseContents, float]:
+    """The database's snapshot (:func:`.database.read_database`) and the wall seconds it took."""
+    clock = time.perf_counter()
+    contents = read_database(Path(path))
+    return contents, time.perf_counter() - clock
 
 
 def add_read_seconds(results: Sequence[CameraCalibration], seconds: float) -> None:

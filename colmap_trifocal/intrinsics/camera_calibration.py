@@ -288,7 +288,6 @@ def _checked_estimate(best: Attempt, camera_id: int, method: str) -> np.ndarray:
             f"{estimate[1]:.4g}; {best.agreeing} of {len(best.tensors.tensors)} tensors agree): "
             "too little parallax or wrong matches"
         )
-    base = fallback.model
-    if base.assumptions():
-        logger.info("camera %d: assumed %s", camera_id, "; ".join(base.assumptions()))
+    if fallback.model.assumptions():
+        logger.info("camera %d: assumed %s", camera_id, "; ".join(fallback.model.assumptions()))
     return estimate
