@@ -109,7 +109,12 @@ def test_pure_translation_holds_the_prior(seed: int) -> None:
     truth, prior, result = calibrated("translation", seed)
     assert not any(result.observable.values())
     np.testing.assert_allclose(result.intrinsics, prior, rtol=1e-12)
-    assert all(std is None for std in result.std.values())
+    # Held at the prior with the prior's assumed std (30 % of f, 10 % of f for c).
+    focal = np.array([prior[0], prior[1], prior[0], prior[1]])
+    np.testing.assert_allclose(
+        [result.std[name] for name in ("fx", "fy", "cx", "cy")],
+        np.array([0.3, 0.3, 0.1, 0.1]) * focal,
+    )
     assert result.assumptions == ["fx, fy held at the prior", "cx, cy held at the prior"]
     assert "pure translation" in (result.warning() or "")
 

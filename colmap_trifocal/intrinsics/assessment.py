@@ -63,8 +63,9 @@ def assess(
         for name, s in zip(PARAMETER_NAMES, std, strict=True)
     }
     for index, name in enumerate(PARAMETER_NAMES):
-        if source[name] == "focal-search":
-            reported_std[name] = float(candidate.held_std[index] * candidate.held[index])
+        if source[name] in ("focal-search", "prior"):
+            # A held value is known as well as its evidence: the start's std.
+            reported_std[name] = float(candidate.held_std[index] * focal_scale[index])
     return CameraCalibration(
         camera_id=camera.camera_id,
         model=camera.model,

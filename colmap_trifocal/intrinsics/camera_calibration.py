@@ -147,8 +147,9 @@ def _calibrate_method(
 ) -> CameraCalibration:
     """One trifocal variant: the start candidates, the polish and the assessment."""
     camera = data.camera
-    best = _attempt(first_start(data.prior, search), None, data, estimator, method, options, clock)
-    for candidate in other_starts(search, best.tensors.start, data.prior, method, options):
+    first = first_start(data.prior, search)
+    best = _attempt(first, None, data, estimator, method, options, clock)
+    for candidate in other_starts(search, first, best.tensors.start, method, options):
         if best.majority_agrees or not estimator.can_afford(len(tracks.triplets)):
             break
         logger.info(

@@ -54,8 +54,9 @@ class CameraCalibration:
     ``observable`` is True where the std is below 1 % of the parameter's scale
     (the focal length; half the image size for the principal point, see
     :mod:`.observability`). Other parameters are either still estimated (weakly
-    determined, std up to 3 tolerances) or tied / held (``std`` None, see
-    ``assumptions``). ``unconstrained_std`` is each parameter's std when all of
+    determined, std up to 3 tolerances), tied (``std`` None) or held at the best
+    evidence, the start or a decisive focal search, with that evidence's std
+    (``source``, ``assumptions``). ``unconstrained_std`` is each parameter's std when all of
     the camera model's parameters are estimated (None where undetermined).
     """
 

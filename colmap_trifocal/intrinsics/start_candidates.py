@@ -68,7 +68,7 @@ def held_values(
 def first_start(prior: np.ndarray, search: FocalSearchResult | None) -> StartCandidate:
     """The prior, with the focal search's focal length where the tracks favour it."""
     start = np.asarray(prior, float).copy()
-    if search is not None and search.improves_on_start:
+    if search is not None and search.favours_focal:
         start[:2] = search.focal
     held, held_std, held_source = held_values(prior, search)
     return StartCandidate(start, held, held_std, held_source)
@@ -76,8 +76,8 @@ def first_start(prior: np.ndarray, search: FocalSearchResult | None) -> StartCan
 
 def other_starts(
     search: FocalSearchResult | None,
+    first: StartCandidate,
     start: np.ndarray,
-    prior: np.ndarray,
     method: str,
     options: CalibrationOptions,
 ) -> list[StartCandidate]:
@@ -86,9 +86,11 @@ def other_starts(
     The focal search's focal length, then the other local minima of its coarse cost
     curve (lowest cost first: the weak perspective of a narrow lens can put the
     global minimum 3x off), each more than ``RESTART_THRESHOLD`` from the focal
-    lengths tried before (``start``'s first), at most ``MAX_OTHER_STARTS``; the
-    aspect ratio and principal point of ``start``. A focal length held at such a
-    start is known no better than a prior: the search's cost did not single it out.
+    lengths tried before (``start``, where the first tensors ended, first), at most
+    ``MAX_OTHER_STARTS``; the aspect ratio and principal point of ``start``. Each
+    holds ``first``'s held values: an other start is only where the tensors are
+    estimated from, and what the tensors leave undetermined stays at the best
+    evidence (never at a focal length whose cost the search did not single out).
     """
     if search is None or not options.restart or method == "direct":
         return []
@@ -99,9 +101,7 @@ def other_starts(
             tried.append(focal)
             other = with_focal(start, focal)
             candidates.append(
-                StartCandidate(
-                    other, np.r_[other[:2], prior[2:]], default_held_std(), "focal-search"
-                )
+                StartCandidate(other, first.held, first.held_std, first.held_source)
             )
     return candidates[:MAX_OTHER_STARTS]
 
