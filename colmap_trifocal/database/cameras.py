@@ -146,6 +146,20 @@ class CameraInfo:
             self.camera_id, self.model, self.width, self.height, params, self.has_prior_focal_length
         )
 
+    def with_distortion(self, distortion: list[float] | np.ndarray) -> CameraInfo:
+        """A copy with the model's extra (distortion) parameters replaced, COLMAP's order."""
+        params = self.params.copy()
+        extra = list(_layout(self.model).extra)
+        if len(extra) != len(distortion):
+            raise ValueError(
+                f"camera {self.camera_id}: model {self.model} has {len(extra)} distortion "
+                f"parameter(s), got {len(distortion)}"
+            )
+        params[extra] = np.asarray(distortion, dtype=np.float64)
+        return CameraInfo(
+            self.camera_id, self.model, self.width, self.height, params, self.has_prior_focal_length
+        )
+
     def to_pycolmap(self) -> pycolmap.Camera:
         """A new ``pycolmap.Camera`` with the same id, model, size, params and prior flag."""
         camera = pycolmap.Camera(

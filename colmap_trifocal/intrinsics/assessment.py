@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..database.cameras import PINHOLE_MODELS
 from ..geometry.tensor_estimation import TripletTensor
 from .camera_input import CameraInput
 from .diagnosis import diagnose
 from .focal_search import FocalSearchResult
+from .lens_distortion import LensDistortion
 from .parametrization import Model
 from .polish import Polished
 from .results import PARAMETER_NAMES, CameraCalibration, TripletReport, finite_or_none
@@ -38,6 +40,7 @@ def assess(
     polished: Polished,
     search: FocalSearchResult | None,
     tracks: list[np.ndarray],
+    lens: LensDistortion | None = None,
 ) -> CameraCalibration:
     """The camera's result (``seconds`` 0: the caller sets them).
 
@@ -46,16 +49,20 @@ def assess(
         start: the normalisation of ``tensors`` (after a restart), pixels.
         polished: the estimate after the polish stage.
         tracks: per triplet, its tracks (3, n, 2), pixels (for the diagnosis).
+        lens: the distortion the triplets show (:mod:`.lens_distortion`), None when
+            it was not estimated.
     """
     camera, model = data.camera, fallback.model
-    estimate = polished.intrinsics
     focal_scale = np.array([start[0], start[1], start[0], start[1]])
+    estimate, relative_std, distortion, lens_note = with_lens(
+        polished.intrinsics, polished.relative_std, lens, camera.model, focal_scale
+    )
     estimated = model.estimated(camera.single_focal)
-    within = (polished.relative_std < fallback.tolerances) & fallback.moved
+    within = (relative_std < fallback.tolerances) & fallback.moved
     observable = {
         name: estimated[name] and bool(ok) for name, ok in zip(PARAMETER_NAMES, within, strict=True)
     }
-    std = polished.relative_std * focal_scale
+    std = relative_std * focal_scale
     unconstrained = fallback.unconstrained.relative_std * focal_scale
     source = parameter_sources(estimated, model, candidate.held_source)
     reported_std = {
@@ -90,8 +97,11 @@ def assess(
         estimated=estimated,
         source=source,
         focal_search=search_summary(search),
-        diagnosis=None if all(observable.values()) else diagnose(tracks, estimate),
+        diagnosis=lens_note
+        or (None if all(observable.values()) else diagnose(tracks, estimate)),
         triplet_bundle=polished.summary,
+        lens_distortion=None if lens is None else lens.summary(),
+        distortion=distortion,
         unconstrained_std={
             name: finite_or_none(s) for name, s in zip(PARAMETER_NAMES, unconstrained, strict=True)
         },
@@ -156,3 +166,44 @@ def triplet_reports(
             )
         )
     return reports
+
+
+def with_lens(
+    intrinsics: np.ndarray,
+    relative_std: np.ndarray,
+    lens: LensDistortion | None,
+    camera_model: str,
+    focal_scale: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, list[float] | None, str | None]:
+    """The estimate and its std (relative to the focal length) once the lens is judged.
+
+    Without distortion in the tracks: unchanged. With it, a camera model that has
+    distortion parameters takes the adjustment's K and distortion, with the larger of
+    the adjustment's std and the estimate's (adding parameters to a fit cannot make
+    the others better known); a pinhole camera (which stays pinhole), or an
+    adjustment that had to move held parameters, keeps its estimate, each std widened
+    by how far the distortion moved that parameter, and a note naming the cause.
+
+    Returns:
+        (fx, fy, cx, cy) in pixels, their std relative to the focal length, the
+        distortion parameters to store (None: keep the stored ones), the note.
+    """
+    if lens is None or not lens.present:
+        return intrinsics, relative_std, None, None
+    words = ", ".join(
+        f"{value:+.4f} ± {std:.4f}"
+        for value, std in zip(lens.distortion, lens.distortion_std, strict=True)
+    )
+    if camera_model not in PINHOLE_MODELS and not lens.adjusts_held:
+        std = np.maximum(lens.intrinsics_std / focal_scale, relative_std)
+        return lens.intrinsics.copy(), std, [float(v) for v in lens.distortion], None
+    shift = np.abs(lens.intrinsics - intrinsics) / focal_scale
+    if camera_model in PINHOLE_MODELS:
+        note = (
+            f"radial distortion in the tracks (k {words}) that the {camera_model} camera "
+            "does not model: the focal length is biased by it; store the camera as "
+            "SIMPLE_RADIAL"
+        )
+    else:
+        note = f"radial distortion in the tracks (k {words}) biases the estimate"
+    return intrinsics, np.hypot(relative_std, shift), None, note

@@ -88,8 +88,9 @@ def updated_cameras(
 ) -> dict[int, CameraInfo]:
     """camera_id -> stored camera with its group's estimate, for every camera of every group.
 
-    Distortion is kept per camera. With ``determined_only`` a group the images
-    determined nothing of is left out (writing the prior back would record a guess).
+    Distortion is kept per camera, or estimated where the stored one is 0. With
+    ``determined_only`` a group the images determined nothing of is left out (writing
+    the prior back would record a guess).
     """
     updated: dict[int, CameraInfo] = {}
     for r in results:
@@ -98,7 +99,7 @@ def updated_cameras(
         if isinstance(r, GroupCalibration):
             updated.update(r.updated_cameras())
         elif r.stored_camera is not None:
-            updated[r.camera_id] = r.stored_camera.with_intrinsics(r.fx, r.fy, r.cx, r.cy)
+            updated[r.camera_id] = r.written_camera(r.stored_camera)
     return updated
 
 
@@ -107,7 +108,8 @@ def write_calibrations(path: Path | str, results: Sequence[CameraCalibration]) -
 
     Every camera id of a group gets the group's estimate. A group the images
     determined nothing of keeps its stored parameters: writing the prior back
-    would record a guess as a calibration. Distortion is kept, per camera.
+    would record a guess as a calibration. Distortion is kept, per camera, except
+    where the stored one is 0 and the tracks showed some (:mod:`.lens_distortion`).
 
     Returns:
         The number of cameras written.

@@ -30,6 +30,7 @@ from .assessment import assess
 from .camera_input import CameraInput, camera_input
 from .focal_search import FocalSearchResult, search_focal
 from .fundamental import calibrate_fundamental
+from .lens_distortion import estimate_distortion
 from .observability import tolerance
 from .options import CalibrationOptions
 from .parametrization import FULL, SINGLE_FOCAL
@@ -180,6 +181,17 @@ def _calibrate_method(
                 options.tau,
                 camera.camera_id,
             )
+        lens = None
+        if method == "msac-opt" and options.triplet_bundle:
+            lens = estimate_distortion(
+                best.tensors.tensors,
+                tracks.by_images(),
+                start,
+                polished.intrinsics,
+                fallback.model,
+                camera,
+                options.tau,
+            )
     with clock("assessment"):
         result = assess(
             data,
@@ -191,6 +203,7 @@ def _calibrate_method(
             polished,
             search,
             tracks.tracks,
+            lens,
         )
     result.seconds = clock.total
     result.stage_seconds = clock.as_dict()

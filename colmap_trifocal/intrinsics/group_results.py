@@ -50,9 +50,9 @@ class GroupCalibration(CameraCalibration):
         )
 
     def updated_cameras(self) -> dict[int, CameraInfo]:
-        """camera_id -> the stored camera with the estimate (pixels), distortion kept."""
+        """camera_id -> the stored camera with the estimate (:meth:`written_camera`)."""
         cameras = self.group_cameras or ([self.stored_camera] if self.stored_camera else [])
-        return {c.camera_id: c.with_intrinsics(self.fx, self.fy, self.cx, self.cy) for c in cameras}
+        return {c.camera_id: self.written_camera(c) for c in cameras}
 
     def to_json(self) -> dict:
         """The contract's object plus ``camera_ids`` and ``start_source``."""

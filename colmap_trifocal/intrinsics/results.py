@@ -94,6 +94,14 @@ class CameraCalibration:
     #: None when it failed) and the constraint estimate it started from
     #: (``constraints``: fx, fy, cx, cy in pixels). None when it did not run.
     triplet_bundle: dict | None = None
+    #: The lens distortion the triplets' calibrated bundle adjustment found
+    #: (:mod:`.lens_distortion`): ``present``, ``params`` and ``std`` (COLMAP's order
+    #: of the model's extra parameters), the likelihood-ratio ``statistic`` and its
+    #: ``threshold``. None when the stored distortion was taken as it is.
+    lens_distortion: dict | None = None
+    #: The distortion parameters to store with the estimate (COLMAP's order), None to
+    #: keep the stored ones.
+    distortion: list[float] | None = None
     triplets: list[TripletReport] = field(default_factory=list)
     #: Wall seconds of each stage (read, tracks, focal_search, tensors, solve, polish,
     #: assessment) and their ``total`` (= ``seconds``); shared stages count for every
@@ -120,6 +128,16 @@ class CameraCalibration:
     def undetermined(self) -> list[str]:
         """Names of the parameters the images do not determine."""
         return [name for name in PARAMETER_NAMES if not self.observable[name]]
+
+    def written_camera(self, stored: CameraInfo) -> CameraInfo:
+        """``stored`` with the estimate (pixels) and, where the tracks showed distortion
+        the stored camera did not hold (all its distortion parameters 0, the same
+        model), the estimated distortion; otherwise its distortion kept."""
+        camera = stored.with_intrinsics(self.fx, self.fy, self.cx, self.cy)
+        same_model = self.stored_camera is not None and stored.model == self.stored_camera.model
+        if self.distortion is not None and same_model and stored.is_undistorted:
+            camera = camera.with_distortion(self.distortion)
+        return camera
 
     def to_json(self) -> dict:
         """The JSON object of DESIGN.md (plus prior, start, assumptions, triplets)."""

@@ -56,6 +56,7 @@ import pycolmap
 
 from ..common.bundle_adjustment import bundle_adjustment_options
 from ..common.log import keep_colmap_quiet
+from ..database.cameras import CameraInfo
 from ..geometry.projective_ba import refine_triplet
 from ..geometry.tensor_estimation import TripletTensor
 from ..geometry.trifocal import intrinsics_matrix
@@ -231,18 +232,23 @@ class _SharedCamera:
     """A pycolmap reconstruction: one camera, each triplet its own three images and points."""
 
     def __init__(self, intrinsics: np.ndarray, camera_model: str, width: int, height: int):
+        """A camera of ``camera_model`` (any of :data:`..database.cameras.SUPPORTED_MODELS`)
+        at (fx, fy, cx, cy), pixels, its distortion parameters 0."""
         self.reconstruction = pycolmap.Reconstruction()
-        params = intrinsics if camera_model == "PINHOLE" else [intrinsics[0], *intrinsics[2:]]
-        self.reconstruction.add_camera_with_trivial_rig(
-            pycolmap.Camera(
-                camera_id=_CAMERA_ID,
-                model=camera_model,
-                width=width,
-                height=height,
-                params=[float(v) for v in params],
-            )
-        )
+        blank = pycolmap.Camera.create_from_model_name(_CAMERA_ID, camera_model, 1.0, width, height)
+        zero = CameraInfo(_CAMERA_ID, camera_model, width, height, np.zeros(len(blank.params)))
+        camera = zero.with_intrinsics(*map(float, intrinsics)).to_pycolmap()
+        self.reconstruction.add_camera_with_trivial_rig(camera)
         self.triplets: list[_Triplet] = []
+
+    @property
+    def camera(self) -> pycolmap.Camera:
+        """The shared camera, as adjusted."""
+        return self.reconstruction.cameras[_CAMERA_ID]
+
+    def cost(self, which: list[int]) -> float:
+        """Summed squared reprojection error (px²) of the triplets ``which``."""
+        return float(sum(self._squared_errors(self.triplets[p]).sum() for p in which))
 
     def intrinsics(self) -> np.ndarray:
         camera = self.reconstruction.cameras[_CAMERA_ID]
@@ -293,11 +299,18 @@ class _SharedCamera:
             )
         )
 
-    def adjust(self, which: list[int], refine_focal: bool, refine_principal_point: bool) -> bool:
-        """Bundle-adjust the triplets ``which`` (positions in ``self.triplets``) in place.
+    def adjuster(
+        self,
+        which: list[int],
+        refine_focal: bool,
+        refine_principal_point: bool,
+        refine_distortion: bool = False,
+    ) -> pycolmap.CeresBundleAdjuster:
+        """pycolmap's bundle adjuster of the triplets ``which`` (positions in
+        ``self.triplets``): poses and points, the camera's parameters as asked.
 
         Each triplet's first pose is held; its scale is a gauge direction that Ceres'
-        damping handles. False when Ceres finds no usable solution.
+        damping handles.
         """
         config = pycolmap.BundleAdjustmentConfig()
         for position in which:
@@ -306,18 +319,30 @@ class _SharedCamera:
                 config.add_image(image_id)
             first = self.reconstruction.images[triplet.image_ids[0]]
             config.set_constant_rig_from_world_pose(first.frame_id)
-        if not (refine_focal or refine_principal_point):
+        if not (refine_focal or refine_principal_point or refine_distortion):
             config.set_constant_cam_intrinsics(_CAMERA_ID)
         options = bundle_adjustment_options(
             refine_focal,
             refine_principal_point,
+            refine_distortion,
             function_tolerance=_FUNCTION_TOLERANCE,
             gradient_tolerance=_GRADIENT_TOLERANCE,
             max_iterations=_MAX_ITERATIONS,
             threads=1,
         )
+        return pycolmap.create_default_ceres_bundle_adjuster(options, config, self.reconstruction)
+
+    def adjust(
+        self,
+        which: list[int],
+        refine_focal: bool,
+        refine_principal_point: bool,
+        refine_distortion: bool = False,
+    ) -> bool:
+        """Bundle-adjust the triplets ``which`` in place (:meth:`adjuster`); False when
+        Ceres finds no usable solution."""
         with keep_colmap_quiet():
-            adjuster = pycolmap.create_default_bundle_adjuster(options, config, self.reconstruction)
+            adjuster = self.adjuster(which, refine_focal, refine_principal_point, refine_distortion)
             return bool(adjuster.solve().is_solution_usable())
 
     def poses_and_points(self, triplet: _Triplet) -> tuple[np.ndarray, np.ndarray]:
@@ -347,25 +372,26 @@ class _SharedCamera:
             np.array([c for _, _, c in parts]),
         )
 
-    def _squared_errors(self, triplet: _Triplet, K: np.ndarray) -> np.ndarray:
-        """(3, n) squared reprojection errors (px²) of a triplet; inf behind a camera."""
+    def _squared_errors(self, triplet: _Triplet) -> np.ndarray:
+        """(3, n) squared reprojection errors (px²) of a triplet through the shared
+        camera (its distortion included); inf behind a camera."""
         poses, points = self.poses_and_points(triplet)
+        camera = self.camera
         errors = np.empty((3, len(points)))
         for view, pose in enumerate(poses):
             local = points @ pose[:, :3].T + pose[:, 3]
-            projected = local @ K.T
-            with np.errstate(divide="ignore", invalid="ignore"):
-                pixels = projected[:, :2] / projected[:, 2:]
+            in_front = local[:, 2] > 0
+            safe = np.where(in_front[:, None], local, [0.0, 0.0, 1.0])
+            pixels = np.asarray(camera.img_from_cam(np.ascontiguousarray(safe), False))
             squared = np.sum((pixels - triplet.pixels[view]) ** 2, axis=1)
-            errors[view] = np.where(local[:, 2] > 0, squared, np.inf)
+            errors[view] = np.where(in_front & np.isfinite(squared), squared, np.inf)
         return errors
 
     def ratios(self) -> np.ndarray:
         """λ of every triplet at the current cameras (inf where a point is behind a camera)."""
-        K = intrinsics_matrix(self.intrinsics())
         return np.array(
             [
-                (float(self._squared_errors(triplet, K).sum()) - triplet.projective_cost)
+                (float(self._squared_errors(triplet).sum()) - triplet.projective_cost)
                 / triplet.sigma2
                 for triplet in self.triplets
             ]

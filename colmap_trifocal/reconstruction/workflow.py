@@ -354,6 +354,7 @@ def build_report(
                 "model": calibration.model,
                 "trifocal": dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True)),
                 "trifocal_std": calibration.std,
+                "trifocal_distortion": calibration.lens_distortion,
                 "observable": calibration.observable,
                 "assumptions": calibration.assumptions,
                 "source": calibration.source,

@@ -1,0 +1,239 @@
+"""Radial distortion from the triplets, before any reconstruction.
+
+Why. A lens whose distortion the stored camera does not hold (COLMAP's default
+``SIMPLE_RADIAL`` with k = 0, or a ``PINHOLE`` camera on a real lens) bends every
+track the same way: every tensor then agrees on the same wrong focal length (k1 =
+−0.1 on a 63° lens: +19 %), and neither the projective three-view residual nor the
+constraints single out k1. A *calibrated* bundle adjustment does: the agreeing
+triplets, each with its own poses and points, share one camera whose distortion
+parameters are free, and their tracks together span the image up to its corners.
+
+What. The calibrated triplets of :mod:`.triplet_bundle` (their poses and points from
+the tensors at the estimate) in one pycolmap reconstruction whose camera is the
+stored model (``SIMPLE_RADIAL``: k; ``RADIAL``: k1, k2; ``OPENCV``: k1, k2, p1, p2), or
+for a pinhole camera ``SIMPLE_RADIAL`` (``SIMPLE_PINHOLE``) or ``OPENCV`` (``PINHOLE``);
+a pinhole camera stays pinhole: the distortion found there only widens the std and
+names the cause. Two rounds of "adjust every triplet at
+the camera, keep those with λ < τ², adjust them together with the camera free". The
+distortion counts as present when the likelihood ratio of the fits with and without
+it, ``(C₀ − C_k) / σ²``, exceeds the χ² quantile ``1 − SIGNIFICANCE`` of its number of
+parameters; the std comes from pycolmap's covariance of the adjustment
+(:func:`pycolmap.estimate_ba_covariance`), scaled by σ² of the residuals.
+
+A stored camera whose distortion is not all 0 is taken as stored: its keypoints are
+already undistorted with it. Intrinsics are (fx, fy, cx, cy) in pixels, COLMAP's pixel
+convention (the centre of the top-left pixel at (0.5, 0.5)).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pycolmap
+from scipy.stats import chi2
+
+from ..common.log import keep_colmap_quiet
+from ..database.cameras import CameraInfo
+from ..geometry.tensor_estimation import TripletTensor
+from .parametrization import Model
+from .triplet_bundle import _shared_camera, _SharedCamera, observed_tracks, pycolmap_camera_setup
+
+#: Probability that the test finds distortion in an undistorted lens (χ² tail)...
+SIGNIFICANCE = 1e-3
+#: ... and in a pinhole camera, where the finding is only a warning and OPENCV's
+#: tangential terms (p1, p2) also take up systematic errors that are not the lens's.
+PINHOLE_SIGNIFICANCE = 1e-6
+#: Triplets that must agree before the distortion is estimated at all.
+MIN_TRIPLETS = 2
+#: The model a pinhole camera's distortion is looked for with (its own focal lengths).
+_DETECTION_MODELS = {"SIMPLE_PINHOLE": "SIMPLE_RADIAL", "PINHOLE": "OPENCV"}
+#: Rounds of "choose the agreeing triplets at the camera, adjust them together".
+ROUNDS = 2
+
+
+@dataclass
+class LensDistortion:
+    """The camera with its distortion estimated from the agreeing triplets.
+
+    Attributes:
+        camera_model: the COLMAP model the adjustment used.
+        intrinsics: (fx, fy, cx, cy) adjusted jointly with the distortion, pixels.
+        intrinsics_std: (4,) their std, pixels (0 for a parameter held).
+        distortion: the model's extra parameters (k1, ...), as COLMAP orders them.
+        distortion_std: (k,) their std.
+        statistic: likelihood ratio ``(C₀ − C_k) / σ²`` of the fits without and with
+            the distortion (χ² with k degrees of freedom where the lens has none).
+        threshold: the statistic above which the distortion counts as present.
+        agreeing: triplets adjusted together.
+        adjusts_held: the adjustment also moved parameters the solve held (a model
+            pycolmap cannot express): a test for distortion, not an estimate.
+    """
+
+    camera_model: str
+    intrinsics: np.ndarray
+    intrinsics_std: np.ndarray
+    distortion: np.ndarray
+    distortion_std: np.ndarray
+    statistic: float
+    threshold: float
+    agreeing: int
+    adjusts_held: bool = False
+
+    @property
+    def present(self) -> bool:
+        """Whether the tracks show distortion the stored camera does not hold."""
+        return self.statistic > self.threshold
+
+    def summary(self) -> dict:
+        """The JSON ``lens_distortion`` report."""
+        return {
+            "camera_model": self.camera_model,
+            "present": self.present,
+            "params": [float(v) for v in self.distortion],
+            "std": [float(v) for v in self.distortion_std],
+            "statistic": float(self.statistic),
+            "threshold": float(self.threshold),
+            "agreeing": self.agreeing,
+            "intrinsics": [float(v) for v in self.intrinsics],
+        }
+
+
+def distortion_model(camera: CameraInfo) -> str | None:
+    """The COLMAP model the distortion is estimated with, None when it is taken as stored
+    (distortion parameters not all 0)."""
+    if not camera.is_undistorted:
+        return None
+    return _DETECTION_MODELS.get(camera.model, camera.model)
+
+
+def estimate_distortion(
+    tensors: list[TripletTensor],
+    tracks: dict[tuple[int, int, int], np.ndarray],
+    start: np.ndarray,
+    estimate: np.ndarray,
+    model: Model,
+    camera: CameraInfo,
+    tau: float,
+) -> LensDistortion | None:
+    """The camera's distortion, focal length and principal point from its triplets.
+
+    Args:
+        tensors: the solve's tensors, normalised by ``start``.
+        tracks: per triplet (image ids), its tracks (3, n, 2), pixels.
+        start: the tensors' normalisation (fx0, fy0, cx0, cy0), pixels.
+        estimate: the estimate so far (fx, fy, cx, cy), pixels.
+        model: which of (fx, fy, cx, cy) are estimated (held ones stay).
+        camera: the stored camera (model, size, distortion).
+        tau: the MSAC threshold; triplets with ``λ < τ²`` agree.
+
+    Returns None when the distortion is taken as stored, fewer than ``MIN_TRIPLETS``
+    triplets agree, or Ceres fails.
+    """
+    camera_model = distortion_model(camera)
+    if camera_model is None or not tensors:
+        return None
+    setup = pycolmap_camera_setup(model)
+    # Where pycolmap cannot hold what the solve held, every parameter is adjusted: the
+    # result then only tests for distortion (``adjusts_held``).
+    _, refine_focal, refine_principal_point = setup or ("", True, True)
+    intrinsics = np.asarray(estimate, float).copy()
+    size = (camera.width, camera.height)
+    observed = observed_tracks(tensors, tracks, start)
+    shared = _shared_camera(observed, start, intrinsics, camera_model, size)
+    if shared is None:
+        return None
+    everything = list(range(len(shared.triplets)))
+    agreeing: list[int] = []
+    with keep_colmap_quiet():
+        for _ in range(ROUNDS):
+            stale = [p for p in everything if p not in agreeing]
+            if stale and not shared.adjust(stale, False, False):
+                return None
+            chosen = [p for p, ratio in enumerate(shared.ratios()) if ratio < tau**2]
+            if len(chosen) < MIN_TRIPLETS:
+                return None
+            if chosen == agreeing:
+                break
+            agreeing = chosen
+            if not shared.adjust(agreeing, refine_focal, refine_principal_point, True):
+                return None
+        without = _cost_without_distortion(shared, agreeing, refine_focal, refine_principal_point)
+        adjuster = shared.adjuster(agreeing, refine_focal, refine_principal_point, True)
+        if not adjuster.solve().is_solution_usable():
+            return None
+        covariance = pycolmap.estimate_ba_covariance(
+            pycolmap.BACovarianceOptions(), shared.reconstruction, adjuster
+        )
+    adjusted = shared.camera
+    params = np.asarray(adjusted.params, dtype=float)
+    with_distortion = shared.cost(agreeing)
+    extra = list(adjusted.extra_params_idxs())
+    points = sum(len(shared.triplets[p].point_ids) for p in agreeing)
+    free = len(params) if refine_principal_point else len(params) - 2
+    variance = with_distortion / max(6 * points - (3 * points + 11 * len(agreeing)) - free, 1)
+    params_std = _params_std(covariance, adjusted, variance, len(params))
+    fitted = CameraInfo(camera.camera_id, camera_model, *size, params)
+    return LensDistortion(
+        camera_model=camera_model,
+        intrinsics=fitted.intrinsics,
+        intrinsics_std=_intrinsics_std(fitted, params_std),
+        distortion=params[extra],
+        distortion_std=params_std[extra],
+        statistic=(without - with_distortion) / variance,
+        threshold=float(
+            chi2.isf(
+                SIGNIFICANCE if camera_model == camera.model else PINHOLE_SIGNIFICANCE,
+                len(extra),
+            )
+        ),
+        agreeing=len(agreeing),
+        adjusts_held=setup is None,
+    )
+
+
+def _cost_without_distortion(
+    shared: _SharedCamera, agreeing: list[int], refine_focal: bool, refine_principal_point: bool
+) -> float:
+    """C₀: the agreeing triplets' squared error (px²) adjusted with the distortion held
+    at 0, on a copy of the reconstruction."""
+    copy = pycolmap.Reconstruction(shared.reconstruction)
+    camera = shared.camera
+    held = CameraInfo.from_pycolmap(camera)
+    params = held.params.copy()
+    params[list(camera.extra_params_idxs())] = 0.0
+    original = shared.reconstruction
+    shared.reconstruction = copy
+    try:
+        copy.cameras[camera.camera_id].params = params.tolist()
+        if not shared.adjust(agreeing, refine_focal, refine_principal_point, False):
+            return float("nan")
+        return shared.cost(agreeing)
+    finally:
+        shared.reconstruction = original
+
+
+def _params_std(
+    covariance: pycolmap.BACovariance | None,
+    camera: pycolmap.Camera,
+    variance: float,
+    count: int,
+) -> np.ndarray:
+    """Std of every camera parameter (COLMAP's order) from pycolmap's covariance of the
+    adjustment (unit weights) scaled by the residual variance; inf where unavailable."""
+    if covariance is None:
+        return np.full(count, np.inf)
+    block = covariance.get_other_params_cov(camera.params)
+    if block is None:
+        return np.full(count, np.inf)
+    block = np.asarray(block, dtype=float)
+    if block.shape != (count, count):
+        return np.full(count, np.inf)
+    return np.sqrt(np.clip(np.diag(block), 0.0, None) * variance)
+
+
+def _intrinsics_std(camera: CameraInfo, params_std: np.ndarray) -> np.ndarray:
+    """(4,) std of (fx, fy, cx, cy) in pixels from the parameters' std."""
+    return CameraInfo(
+        camera.camera_id, camera.model, camera.width, camera.height, params_std
+    ).intrinsics

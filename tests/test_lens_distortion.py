@@ -1,0 +1,94 @@
+"""Lenses whose distortion the stored camera does not hold (COLMAP's default camera,
+SIMPLE_RADIAL with k = 0, or a PINHOLE camera on a real lens): the calibration
+estimates k from the triplets' calibrated bundle adjustment, says so where the model
+cannot hold it, and never ends further from the truth than its start."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pycolmap
+import pytest
+
+from colmap_trifocal import CalibrationOptions, calibrate_contents
+from colmap_trifocal.database.cameras import CameraInfo
+from colmap_trifocal.intrinsics.calibrate import write_calibrations
+from colmap_trifocal.synthetic.database import CAMERA_ID, scene_contents, write_database
+from colmap_trifocal.synthetic.lenses import with_radial_distortion
+from colmap_trifocal.synthetic.motions import handheld_indoor
+
+NAMES = ("fx", "fy", "cx", "cy")
+
+
+def _default_camera_contents(k1: float, seed: int):
+    """The 17-frame handheld set through a ``k1`` lens, stored as COLMAP's default
+    SIMPLE_RADIAL camera (k = 0), and its true (fx, fy, cx, cy)."""
+    scene = with_radial_distortion(handheld_indoor(seed=seed), k1)
+    contents = scene_contents(scene)
+    width, height = scene.width, scene.height
+    default = [1.2 * max(width, height), width / 2, height / 2, 0.0]
+    contents.cameras[CAMERA_ID] = CameraInfo(CAMERA_ID, "SIMPLE_RADIAL", width, height, default)
+    return contents, scene.intrinsics
+
+
+@pytest.mark.parametrize(("k1", "seed"), [(0.0, 0), (-0.05, 1), (-0.1, 0), (0.05, 1)])
+def test_k_estimated_with_the_intrinsics_from_the_default_camera(k1: float, seed: int) -> None:
+    contents, truth = _default_camera_contents(k1, seed)
+    (result,) = calibrate_contents(contents, CalibrationOptions(no_prior=True, seed=seed))
+    lens = result.lens_distortion
+    assert lens is not None
+    (k,) = lens["params"]
+    if k1 == 0.0:
+        assert not lens["present"] and result.distortion is None
+        assert abs(k) < 0.008
+    else:
+        # Without k the focal length is 6-19 % off on these lenses.
+        assert lens["present"] and result.distortion == [k]
+        assert abs(k - k1) < 0.1 * abs(k1)
+    error = result.intrinsics - truth
+    assert np.all(np.abs(error) / truth[0] < 0.015)
+    for index, name in enumerate(NAMES):
+        std = result.std[name]
+        assert std is not None and abs(error[index]) < 3 * std, (name, error[index], std)
+
+
+def test_a_pinhole_camera_stays_pinhole_and_says_why_its_focal_length_is_uncertain() -> None:
+    """k1 = −0.05 through a PINHOLE camera: the constraints' focal length is 8 % off; the
+    std covers it and the warning names the distortion instead of claiming 0.3 %."""
+    scene = with_radial_distortion(handheld_indoor(seed=0), -0.05)
+    (result,) = calibrate_contents(scene_contents(scene), CalibrationOptions(no_prior=True, seed=0))
+    assert result.lens_distortion is not None and result.lens_distortion["present"]
+    assert result.distortion is None
+    assert "radial distortion in the tracks" in (result.diagnosis or "")
+    assert not result.observable["fx"] and "radial distortion" in (result.warning() or "")
+    error = abs(result.fx - scene.intrinsics[0])
+    assert error / scene.intrinsics[0] > 0.05  # still biased: a pinhole camera cannot hold k
+    assert result.std["fx"] is not None and error < 2 * result.std["fx"]
+
+
+def test_strong_distortion_never_ends_further_from_the_truth_than_the_prior() -> None:
+    """k1 = −0.25: the tensors disagree and the focal search's cost is not decisive; the
+    result is the prior, with the prior's std (an indecisive search used to replace it,
+    194 % off)."""
+    contents, truth = _default_camera_contents(-0.25, 0)
+    prior = truth * np.array([1.05, 1.05, 1.02, 0.98])
+    (result,) = calibrate_contents(contents, CalibrationOptions(prior=tuple(prior), seed=0))
+    start_error = np.abs(prior - truth)
+    error = np.abs(result.intrinsics - truth)
+    for index, name in enumerate(NAMES):
+        if not result.observable[name]:
+            assert error[index] <= start_error[index] + 1e-9, name
+            std = result.std[name]
+            assert std is not None and error[index] < 2 * std
+
+
+def test_the_estimated_k_is_written_to_the_database(tmp_path: Path) -> None:
+    contents, truth = _default_camera_contents(-0.05, 1)
+    database = write_database(contents, tmp_path / "database.db")
+    (result,) = calibrate_contents(contents, CalibrationOptions(no_prior=True, seed=1))
+    assert write_calibrations(database, [result]) == 1
+    camera = pycolmap.Database.open(str(database)).read_camera(CAMERA_ID)
+    assert camera.model.name == "SIMPLE_RADIAL"
+    f, cx, cy, k = camera.params
+    assert abs(f / truth[0] - 1) < 0.015 and abs(k + 0.05) < 0.005
