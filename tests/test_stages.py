@@ -22,6 +22,7 @@ from colmap_trifocal.intrinsics.tensor_set import MAX_STARTS_PER_TRIPLET
 from colmap_trifocal.synthetic.database import scene_contents
 from colmap_trifocal.synthetic.demo import make_demo_database
 from colmap_trifocal.synthetic.facade import facade_scene
+from colmap_trifocal.synthetic.lenses import with_radial_distortion
 
 VIEWS = (0, 4, 8)
 
@@ -56,7 +57,7 @@ def test_tensor_carried_to_a_new_start_equals_the_one_estimated_there() -> None:
     assert np.isclose(np.linalg.norm(carried.tensor), 1.0)
 
 
-def _one_triplet_reconstruction(scene, views=VIEWS):
+def _one_triplet_reconstruction(scene, views=VIEWS, model="PINHOLE", params=None):
     """A pycolmap reconstruction of three views of a scene (true poses, noisy pixels)."""
     seen = np.all(scene.visible[list(views)], axis=0) & ~scene.outliers
     pixels = scene.observations[list(views)][:, seen]
@@ -64,10 +65,10 @@ def _one_triplet_reconstruction(scene, views=VIEWS):
     reconstruction.add_camera_with_trivial_rig(
         pycolmap.Camera(
             camera_id=1,
-            model="PINHOLE",
+            model=model,
             width=scene.width,
             height=scene.height,
-            params=[float(v) for v in scene.intrinsics],
+            params=[float(v) for v in (scene.intrinsics if params is None else params)],
         )
     )
     for view, index in enumerate(views):
@@ -116,6 +117,45 @@ def test_triplet_information_matches_pycolmaps_covariance() -> None:
     )
     # At the optimum the reduced gradient vanishes (relative to the information).
     assert np.all(np.abs(np.linalg.solve(H, gradient)) < 1e-3 * np.sqrt(np.diag(np.linalg.inv(H))))
+    assert cost == pytest.approx(2 * adjuster.solve().ceres_summary.final_cost, rel=1e-6)
+
+
+def test_radial_triplet_information_matches_pycolmaps_covariance() -> None:
+    """The same with a SIMPLE_RADIAL camera (f, cx, cy, k): H on (fx, fy, cx, cy, k)
+    reduced to the single focal length matches pycolmap's covariance of (f, cx, cy, k)."""
+    scene = with_radial_distortion(facade_scene(relief=0.3, seed=2, num_points=400), -0.08)
+    f, cx, cy = scene.intrinsics[0], scene.intrinsics[2], scene.intrinsics[3]
+    reconstruction, pixels, point_ids = _one_triplet_reconstruction(
+        scene, model="SIMPLE_RADIAL", params=[f, cx, cy, 0.0]
+    )
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in (1, 2, 3):
+        config.add_image(image_id)
+    config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    options = bundle_adjustment_options(True, True, True, function_tolerance=1e-12, threads=1)
+    adjuster = pycolmap.create_default_ceres_bundle_adjuster(options, config, reconstruction)
+    assert adjuster.solve().is_solution_usable()
+    camera = reconstruction.cameras[1]
+    assert camera.params[3] == pytest.approx(-0.08, abs=0.02)  # the lens is found
+    covariance = pycolmap.estimate_ba_covariance(
+        pycolmap.BACovarianceOptions(), reconstruction, adjuster
+    )
+    camera_block = covariance.get_other_params_cov(camera.params)
+    f, cx, cy, k = camera.params
+    poses = np.stack(
+        [np.asarray(reconstruction.images[i].cam_from_world().matrix()) for i in (1, 2, 3)]
+    )
+    points = np.array([reconstruction.points3D[p].xyz for p in point_ids])
+    H, _, cost = reduced_information(
+        np.array([f, f, cx, cy]), poses, points, pixels, radial=np.array([k])
+    )
+    single = np.array(
+        [[1.0, 0, 0, 0], [1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]]
+    )
+    reduced = single.T @ H @ single
+    np.testing.assert_allclose(
+        np.sqrt(np.diag(np.linalg.inv(reduced))), np.sqrt(np.diag(camera_block)), rtol=0.01
+    )
     assert cost == pytest.approx(2 * adjuster.solve().ceres_summary.final_cost, rel=1e-6)
 
 

@@ -24,26 +24,39 @@ from ..geometry.projective_ba import gauge_free_inverse, inverse_3x3
 
 
 def reduced_information(
-    intrinsics: np.ndarray, poses: np.ndarray, points: np.ndarray, pixels: np.ndarray
+    intrinsics: np.ndarray,
+    poses: np.ndarray,
+    points: np.ndarray,
+    pixels: np.ndarray,
+    radial: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, float]:
-    """One triplet's information and gradient on (fx, fy, cx, cy), and its cost.
+    """One triplet's information and gradient on the camera, and its cost.
+
+    The camera is (fx, fy, cx, cy) and, with ``radial``, COLMAP's radial distortion
+    ``(k1[, k2])`` of ``SIMPLE_RADIAL`` / ``RADIAL``: a point at normalised ``(u, v)``,
+    ``ρ = u² + v²``, is seen at ``(fx u s + cx, fy v s + cy)``, ``s = 1 + k1 ρ + k2 ρ²``.
 
     Args:
         intrinsics: (fx, fy, cx, cy), pixels.
         poses: (3, 3, 4) ``[R | t]`` world-to-camera of views 1, 2, 3 (view 1 held).
         points: (n, 3) the tracks' points, world coordinates.
         pixels: (3, n, 2) the observations, pixels.
+        radial: (m,) the radial coefficients (m = 1 or 2), None for a pinhole camera.
 
     Returns:
-        H (4, 4) = ``J_kᵀ J_k`` with poses and points eliminated, g (4,) = the reduced
-        ``J_kᵀ r`` (the gradient of half the squared error), and ``Σ r²`` (px²).
+        H (q, q) = ``J_kᵀ J_k`` with poses and points eliminated, g (q,) = the reduced
+        ``J_kᵀ r`` (the gradient of half the squared error), and ``Σ r²`` (px²);
+        q = 4 + m, the camera's parameters in the order above.
     """
     fx, fy, cx, cy = intrinsics
+    k = np.zeros(2) if radial is None else np.r_[np.asarray(radial, float), 0.0][:2]
+    m = 0 if radial is None else len(radial)
+    q = 4 + m
     n = len(points)
     V = np.zeros((n, 3, 3))  # point blocks
-    W = np.zeros((n, 16, 3))  # (intrinsics, poses of views 2 and 3) x point
-    U = np.zeros((16, 16))
-    g_y = np.zeros(16)
+    W = np.zeros((n, q + 12, 3))  # (camera, poses of views 2 and 3) x point
+    U = np.zeros((q + 12, q + 12))
+    g_y = np.zeros(q + 12)
     g_p = np.zeros((n, 3))
     cost = 0.0
     for view in range(3):
@@ -51,25 +64,38 @@ def reduced_information(
         local = points @ R.T + t  # (n, 3)
         z = local[:, 2]
         u, v = local[:, 0] / z, local[:, 1] / z
-        r = np.stack([fx * u + cx, fy * v + cy], axis=1) - pixels[view]  # (n, 2)
+        rho = u * u + v * v
+        scale = 1.0 + k[0] * rho + k[1] * rho * rho
+        slope = k[0] + 2.0 * k[1] * rho  # d scale / d rho
+        r = np.stack([fx * u * scale + cx, fy * v * scale + cy], axis=1) - pixels[view]
         cost += float(np.sum(r * r))
-        # d pixel / d camera-frame point, (n, 2, 3)
-        D = np.zeros((n, 2, 3))
-        D[:, 0, 0], D[:, 0, 2] = fx / z, -fx * u / z
-        D[:, 1, 1], D[:, 1, 2] = fy / z, -fy * v / z
-        J_k = np.zeros((n, 2, 4))
-        J_k[:, 0, 0], J_k[:, 1, 1], J_k[:, 0, 2], J_k[:, 1, 3] = u, v, 1.0, 1.0
+        # d pixel / d (u, v), (n, 2, 2), then d pixel / d camera-frame point, (n, 2, 3)
+        M = np.empty((n, 2, 2))
+        M[:, 0, 0] = fx * (scale + 2.0 * u * u * slope)
+        M[:, 0, 1] = fx * 2.0 * u * v * slope
+        M[:, 1, 0] = fy * 2.0 * u * v * slope
+        M[:, 1, 1] = fy * (scale + 2.0 * v * v * slope)
+        P = np.zeros((n, 2, 3))
+        P[:, 0, 0], P[:, 0, 2] = 1.0 / z, -u / z
+        P[:, 1, 1], P[:, 1, 2] = 1.0 / z, -v / z
+        D = M @ P
+        J_k = np.zeros((n, 2, q))
+        J_k[:, 0, 0], J_k[:, 1, 1] = u * scale, v * scale
+        J_k[:, 0, 2], J_k[:, 1, 3] = 1.0, 1.0
+        for power in range(1, m + 1):
+            J_k[:, 0, 3 + power] = fx * u * rho**power
+            J_k[:, 1, 3 + power] = fy * v * rho**power
         J_p = D @ R  # (n, 2, 3)
-        J_y = np.zeros((n, 2, 16))
-        J_y[:, :, :4] = J_k
+        J_y = np.zeros((n, 2, q + 12))
+        J_y[:, :, :q] = J_k
         if view > 0:
             skew = np.zeros((n, 3, 3))  # −[X_c]ₓ
             skew[:, 0, 1], skew[:, 0, 2] = local[:, 2], -local[:, 1]
             skew[:, 1, 0], skew[:, 1, 2] = -local[:, 2], local[:, 0]
             skew[:, 2, 0], skew[:, 2, 1] = local[:, 1], -local[:, 0]
-            columns = slice(4 + 6 * (view - 1), 10 + 6 * (view - 1))
+            columns = slice(q + 6 * (view - 1), q + 6 + 6 * (view - 1))
             J_y[:, :, columns] = np.concatenate([D @ skew, D], axis=2)
-        flat = J_y.reshape(2 * n, 16)
+        flat = J_y.reshape(2 * n, q + 12)
         U += flat.T @ flat
         g_y += flat.T @ r.reshape(2 * n)
         J_pt = np.swapaxes(J_p, 1, 2)  # (n, 3, 2)
@@ -77,11 +103,11 @@ def reduced_information(
         W += np.swapaxes(J_y, 1, 2) @ J_p
         g_p += (J_pt @ r[:, :, None])[:, :, 0]
     V_inverse = inverse_3x3(V + 1e-12 * np.eye(3))
-    WV = W @ V_inverse  # (n, 16, 3)
+    WV = W @ V_inverse  # (n, q + 12, 3)
     S = U - np.einsum("nak,nbk->ab", WV, W)
     g = g_y - np.einsum("nak,nk->a", WV, g_p)
-    # Eliminate the poses (rows 4..15); their null direction is the triplet's scale.
-    S_cc_inverse = gauge_free_inverse(S[4:, 4:], 1)
-    H = S[:4, :4] - S[:4, 4:] @ S_cc_inverse @ S[4:, :4]
-    gradient = g[:4] - S[:4, 4:] @ S_cc_inverse @ g[4:]
+    # Eliminate the poses (rows q..q+11); their null direction is the triplet's scale.
+    S_cc_inverse = gauge_free_inverse(S[q:, q:], 1)
+    H = S[:q, :q] - S[:q, q:] @ S_cc_inverse @ S[q:, :q]
+    gradient = g[:q] - S[:q, q:] @ S_cc_inverse @ g[q:]
     return 0.5 * (H + H.T), gradient, cost

@@ -18,7 +18,9 @@ the camera, keep those with λ < τ², adjust them together with the camera free
 distortion counts as present when the likelihood ratio of the fits with and without
 it, ``(C₀ − C_k) / σ²``, exceeds the χ² quantile ``1 − SIGNIFICANCE`` of its number of
 parameters; the std comes from pycolmap's covariance of the adjustment
-(:func:`pycolmap.estimate_ba_covariance`), scaled by σ² of the residuals.
+(:func:`pycolmap.estimate_ba_covariance`), scaled by σ² of the residuals, or for
+``SIMPLE_RADIAL`` / ``RADIAL`` the delete-a-group-of-images jackknife where it is larger
+(as the polish's, :mod:`.triplet_bundle`).
 
 A stored camera whose distortion is not all 0 is taken as stored: its keypoints are
 already undistorted with it. Intrinsics are (fx, fy, cx, cy) in pixels, COLMAP's pixel
@@ -36,16 +38,28 @@ from scipy.stats import chi2
 from ..common.log import keep_colmap_quiet
 from ..database.cameras import CameraInfo
 from ..geometry.tensor_estimation import TripletTensor
+from .bundle_information import reduced_information
 from .parametrization import Model
-from .triplet_bundle import _shared_camera, _SharedCamera, observed_tracks, pycolmap_camera_setup
+from .triplet_bundle import (
+    _one_step_jackknife_std,
+    _shared_camera,
+    _SharedCamera,
+    observed_tracks,
+    pycolmap_camera_setup,
+)
 
-#: Probability that the test finds distortion in an undistorted lens (χ² tail)...
-SIGNIFICANCE = 1e-3
+#: Probability that the test finds distortion in an undistorted lens (χ² tail): low
+#: power costs more than a false alarm, whose joint estimate is still unbiased and
+#: carries its own (larger) std...
+SIGNIFICANCE = 0.05
 #: ... and in a pinhole camera, where the finding is only a warning and OPENCV's
 #: tangential terms (p1, p2) also take up systematic errors that are not the lens's.
 PINHOLE_SIGNIFICANCE = 1e-6
 #: Triplets that must agree before the distortion is estimated at all.
 MIN_TRIPLETS = 2
+#: Models whose distortion is radial only, with a single focal length: the jackknife
+#: of :func:`.bundle_information.reduced_information` applies.
+_RADIAL_MODELS = ("SIMPLE_RADIAL", "RADIAL")
 #: The model a pinhole camera's distortion is looked for with (its own focal lengths).
 _DETECTION_MODELS = {"SIMPLE_PINHOLE": "SIMPLE_RADIAL", "PINHOLE": "OPENCV"}
 #: Rounds of "choose the agreeing triplets at the camera, adjust them together".
@@ -174,12 +188,18 @@ def estimate_distortion(
     variance = with_distortion / max(6 * points - (3 * points + 11 * len(agreeing)) - free, 1)
     params_std = _params_std(covariance, adjusted, variance, len(params))
     fitted = CameraInfo(camera.camera_id, camera_model, *size, params)
+    intrinsics_std = _intrinsics_std(fitted, params_std)
+    distortion_std = params_std[extra]
+    jackknife = _jackknife_std(shared, agreeing, fitted, tensors, refine_principal_point)
+    if jackknife is not None:
+        intrinsics_std = np.maximum(intrinsics_std, jackknife[:4])
+        distortion_std = np.maximum(distortion_std, jackknife[4:])
     return LensDistortion(
         camera_model=camera_model,
         intrinsics=fitted.intrinsics,
-        intrinsics_std=_intrinsics_std(fitted, params_std),
+        intrinsics_std=intrinsics_std,
         distortion=params[extra],
-        distortion_std=params_std[extra],
+        distortion_std=distortion_std,
         statistic=(without - with_distortion) / variance,
         threshold=float(
             chi2.isf(
@@ -237,3 +257,39 @@ def _intrinsics_std(camera: CameraInfo, params_std: np.ndarray) -> np.ndarray:
     return CameraInfo(
         camera.camera_id, camera.model, camera.width, camera.height, params_std
     ).intrinsics
+
+
+def _jackknife_std(
+    shared: _SharedCamera,
+    agreeing: list[int],
+    fitted: CameraInfo,
+    tensors: list[TripletTensor],
+    refine_principal_point: bool,
+) -> np.ndarray | None:
+    """(4 + m,) delete-a-group-of-images jackknife std of (fx, fy, cx, cy, k1[, k2]) of
+    a ``SIMPLE_RADIAL`` / ``RADIAL`` camera (pixels; k unitless): one Gauss–Newton step
+    per replicate on the triplets' Schur complements (:mod:`.bundle_information`).
+    None for other models or too few image groups."""
+    if fitted.model not in _RADIAL_MODELS:
+        return None
+    radial = fitted.distortion
+    parts = []
+    for position in agreeing:
+        triplet = shared.triplets[position]
+        poses, points = shared.poses_and_points(triplet)
+        parts.append(
+            reduced_information(fitted.intrinsics, poses, points, triplet.pixels, radial)
+        )
+    q = 4 + len(radial)
+    columns = [np.r_[1.0, 1.0, np.zeros(q - 2)]]  # the single focal length
+    if refine_principal_point:
+        columns += [np.eye(q)[2], np.eye(q)[3]]
+    columns += [np.eye(q)[4 + i] for i in range(len(radial))]
+    groups = [tensors[shared.triplets[p].index].image_ids for p in agreeing]
+    return _one_step_jackknife_std(
+        np.r_[fitted.intrinsics, radial],
+        np.stack([h for h, _, _ in parts]),
+        np.stack([g for _, g, _ in parts]),
+        np.array(columns).T,
+        groups,
+    )
