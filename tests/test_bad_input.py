@@ -863,6 +863,11 @@ CASES: dict[str, Case] = {
     "demo --keep is a file": Case(
         _file, "cannot write --keep: ", argv=lambda f, p, w: ("demo", "--keep", p)
     ),
+    "run WORKSPACE in a folder no folder can be made in": Case(
+        lambda f, g: _images(f / "photos"),
+        "cannot write WORKSPACE: folder /proc is not writable",
+        argv=lambda f, p, w: ("run", p, "/proc/ws"),
+    ),
     "run: an image is a dangling symlink (OpenCV's warning)": Case(
         _dangling_image, "cannot read image", argv=lambda f, p, w: ("run", p, w)
     ),

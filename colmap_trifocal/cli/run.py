@@ -1,6 +1,6 @@
 """``colmap-trifocal run IMAGES WORKSPACE``: features, calibration, mapping, bundle adjustment.
 
-Before any work: the flags, the ``--png`` path, and the rule that no output (the
+Before any work: the flags, the workspace and ``--png`` paths, and the rule that no output (the
 workspace's ``database.db``, ``sparse/``, ``report.json``, the PNG) is or holds an
 input (the images, ``--database``, ``--model``). Then the pipeline runs
 (:func:`colmap_trifocal.reconstruction.workflow.run_pipeline`), announcing its stages on
@@ -16,7 +16,7 @@ from pathlib import Path
 from ..common.arguments import seed
 from ..common.errors import CalibrationError
 from ..common.files import Output, refuse_outputs_over_inputs
-from .output import check_output_file, native_output_silenced, warn
+from .output import check_output_file, check_output_folder, native_output_silenced, warn
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -96,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
     )
     # With --database, IMAGES is optional (only used to colour the points).
     images = args.images if args.database is None or args.images.is_dir() else None
+    if args.workspace.is_dir() or not args.workspace.exists():  # a file: the workflow says so
+        check_output_folder(args.workspace, "WORKSPACE")
     outputs = workspace_outputs(args.workspace)
     if args.png is not None:
         check_output_file(args.png, "--png")
