@@ -501,6 +501,13 @@ def _model_database_and_link(folder: Path, good: Path) -> Path:
     return path
 
 
+def _model_database_and_empty_output(folder: Path, good: Path) -> Path:
+    """As :func:`_model_and_database`, with an empty folder ``folder/out``."""
+    path = _model_and_database(folder, good)
+    (folder / "out").mkdir()
+    return path
+
+
 def _calibrate_model(*args: object) -> Callable[[Path, Path, Path], tuple]:
     """``calibrate PATH --model FOLDER/sparse/0 --output WORKSPACE ARGS``."""
     return lambda f, p, w: ("calibrate", p, "--model", f / "sparse" / "0", "--output", w, *args)
@@ -835,6 +842,25 @@ CASES: dict[str, Case] = {
         _with_companion("-wal"),
         "is the --database input's companion file",
         argv=_run("--png", "{folder}/database.db-wal"),
+    ),
+    "run --png is WORKSPACE/report.json": Case(
+        lambda f, g: _images(f / "photos"),
+        "is also the workspace output",
+        argv=lambda f, p, w: ("run", p, f, "--png", f / "report.json"),
+    ),
+    "calibrate --json inside --output": Case(
+        _model_database_and_empty_output,
+        "is inside --output",
+        argv=lambda f, p, w: (
+            "calibrate",
+            p,
+            "--model",
+            f / "sparse" / "0",
+            "--output",
+            f / "out",
+            "--json",
+            f / "out" / "cameras.bin",
+        ),  # fmt: skip
     ),
     # ----- issue 22, item 12: output paths checked before any work, so one line
     "show --png into a missing folder": Case(

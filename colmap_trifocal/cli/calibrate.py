@@ -191,7 +191,7 @@ def _check_arguments(args: argparse.Namespace) -> None:
         check_output_folder(args.output, "--output")
         into_model.read_model(args.model)  # a one-line error now, not after the calibration
         inputs.append(Input.folder(args.model, "--model"))
-        outputs.append(Output("--output", args.output))
+        outputs.append(Output("--output", args.output, folder=True))
     if args.json is not None:
         check_output_file(args.json, "--json")
         if not is_stdout(args.json):

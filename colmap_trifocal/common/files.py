@@ -64,7 +64,8 @@ class Input:
 
 @dataclass(frozen=True)
 class Output:
-    """A path a command writes: a file it replaces, or a folder it fills or empties.
+    """A path a command writes: a file it replaces, or (``folder``) a folder it fills or
+    empties.
 
     ``option`` starts the refusal (``--json OUT is ...``); ``hint`` ends it.
     """
@@ -72,6 +73,7 @@ class Output:
     option: str
     path: Path
     hint: str = ""
+    folder: bool = False
 
 
 def refuse_outputs_over_inputs(outputs: Iterable[Output], inputs: Iterable[Input]) -> None:
@@ -82,11 +84,14 @@ def refuse_outputs_over_inputs(outputs: Iterable[Output], inputs: Iterable[Input
     input is caught as well as its own path), and, when it is a folder (replaced or
     emptied), when any input or input file lies inside it (its real path below the
     folder; a symlink into the folder counts). An output that does not exist yet
-    replaces nothing: a new file inside an input folder is allowed.
+    replaces nothing: a new file inside an input folder is allowed. The outputs are
+    also checked against each other (:func:`_refuse_overlapping_outputs`).
 
     Raises:
-        CalibrationError: an output is an input, or holds one.
+        CalibrationError: an output is an input, or holds one, or is another output.
     """
+    outputs = list(outputs)
+    _refuse_overlapping_outputs(outputs)
     existing = [(output, file_identity(output.path)) for output in outputs]
     files = {identity: output for output, identity in existing if identity is not None}
     folders = {identity: output for identity, output in files.items() if os.path.isdir(output.path)}
@@ -123,6 +128,25 @@ def refuse_outputs_over_inputs(outputs: Iterable[Output], inputs: Iterable[Input
                         f"{given.name} {given.path} is inside {output.option} {output.path}: "
                         f"refusing to overwrite it{output.hint}"
                     )
+
+
+def _refuse_overlapping_outputs(outputs: Sequence[Output]) -> None:
+    """Refuse two outputs at one real path, or one inside a folder output (say a PNG
+    named ``WORKSPACE/report.json``: written after the report, it would replace it).
+    Compared by real path, since most outputs do not exist yet."""
+    real = [Path(os.path.realpath(output.path)) for output in outputs]
+    for i, output in enumerate(outputs):
+        for j, other in enumerate(outputs):
+            if i < j and real[i] == real[j]:
+                raise CalibrationError(
+                    f"{other.option} {other.path} is also {output.option} {output.path}: "
+                    "refusing to write it twice"
+                )
+            if other.folder and real[j] in real[i].parents:
+                raise CalibrationError(
+                    f"{output.option} {output.path} is inside {other.option} {other.path}: "
+                    f"refusing to overwrite it{other.hint}"
+                )
 
 
 def _real_ancestors(path: Path) -> list[Path]:

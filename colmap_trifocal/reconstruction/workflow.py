@@ -147,7 +147,9 @@ def workspace_outputs(workspace: Path) -> list[Output]:
     """The workspace's outputs (``database.db``, ``sparse/``, ``report.json``): written,
     and with ``--overwrite`` removed first."""
     return [
-        Output("the workspace output", workspace / name, " (use another WORKSPACE)")
+        Output(
+            "the workspace output", workspace / name, " (use another WORKSPACE)", name == "sparse"
+        )
         for name in WORKSPACE_OUTPUTS
     ]
 
