@@ -862,6 +862,11 @@ CASES: dict[str, Case] = {
             f / "out" / "cameras.bin",
         ),  # fmt: skip
     ),
+    "DATABASE is ., with --json": Case(
+        _copy,
+        "database path is a directory: .",
+        argv=lambda f, p, w: ("calibrate", ".", "--json", f / "out.json"),
+    ),
     # ----- issue 22, item 12: output paths checked before any work, so one line
     "show --png into a missing folder": Case(
         _models(),

@@ -43,7 +43,7 @@ class Input:
     @classmethod
     def database(cls, path: Path, name: str = "DATABASE", what: str = "the database") -> Input:
         """A SQLite database with its companion files (``-wal``, ``-shm``, ``-journal``)."""
-        companions = (path.with_name(path.name + suffix) for suffix in SQLITE_COMPANIONS)
+        companions = [Path(f"{path}{suffix}") for suffix in SQLITE_COMPANIONS]
         return cls(name, path, what, (path, *companions))
 
     @classmethod
