@@ -38,6 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 
+import cv2
 import numpy as np
 import pycolmap
 import pytest
@@ -267,13 +268,15 @@ def run_cli(*args: object, preexec_fn: Callable[[], None] | None = None) -> CliR
 def restored_process_state() -> Iterator[None]:
     """Undo what :func:`colmap_trifocal.cli.main` changes in the process: the handlers of
     SIGINT/SIGTERM/SIGHUP and the signal mask (it restores them itself; this also covers a
-    run that raised), the package logger (``-v`` adds a handler) and COLMAP's log level."""
+    run that raised), the package logger (``-v`` adds a handler), COLMAP's and OpenCV's log
+    levels."""
     signums = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     handlers = {signum: signal.getsignal(signum) for signum in signums}
     mask = signal.pthread_sigmask(signal.SIG_BLOCK, set())
     logger = logging.getLogger("colmap_trifocal")
     log_state = (list(logger.handlers), logger.level, logger.propagate)
     minloglevel = pycolmap.logging.minloglevel
+    opencv_level = cv2.utils.logging.getLogLevel()
     try:
         yield
     finally:
@@ -282,6 +285,7 @@ def restored_process_state() -> Iterator[None]:
         signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         logger.handlers[:], logger.level, logger.propagate = log_state
         pycolmap.logging.minloglevel = minloglevel
+        cv2.utils.logging.setLogLevel(opencv_level)
 
 
 @pytest.fixture

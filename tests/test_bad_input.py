@@ -40,6 +40,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pycolmap
 import pytest
@@ -433,6 +434,91 @@ def _database_in_workspace(folder: Path, good: Path) -> Path:
     return _copy(folder / "input", good)
 
 
+def _images(folder: Path, names: tuple[str, ...] = ("a.png", "b.png", "c.png")) -> Path:
+    """``folder`` with three small readable images (random grey levels, 64 x 48 pixels)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(11)
+    for name in names:
+        assert cv2.imwrite(str(folder / name), rng.integers(0, 256, (48, 64), np.uint8))
+    return folder
+
+
+def _images_in_sparse(folder: Path, _good: Path) -> Path:
+    """An earlier run's workspace (the folder) whose ``sparse/`` also holds the images."""
+    return _images(folder / "sparse")
+
+
+def _images_linked_into_sparse(folder: Path, _good: Path) -> Path:
+    """An image folder whose images are symlinks to files in the workspace's ``sparse/``."""
+    _images(folder / "sparse")
+    (folder / "photos").mkdir()
+    for name in ("a.png", "b.png", "c.png"):
+        (folder / "photos" / name).symlink_to(folder / "sparse" / name)
+    return folder / "photos"
+
+
+def _link_to_images_in_sparse(folder: Path, good: Path) -> Path:
+    """``folder/photos``, a symlink to the workspace's ``sparse/`` that holds the images."""
+    _images_in_sparse(folder, good)
+    (folder / "photos").symlink_to(folder / "sparse")
+    return folder / "photos"
+
+
+def _images_and_hard_link(folder: Path, _good: Path) -> Path:
+    """``folder/photos`` with three images, ``folder/out.png`` a hard link to one of them."""
+    photos = _images(folder / "photos")
+    os.link(photos / "a.png", folder / "out.png")
+    return photos
+
+
+def _dangling_image(folder: Path, _good: Path) -> Path:
+    """Three images, one of them a symlink to nothing (OpenCV warns when reading it)."""
+    _images(folder / "photos", ("b.png", "c.png", "d.png"))
+    (folder / "photos" / "a.png").symlink_to(folder / "gone.png")
+    return folder / "photos"
+
+
+def _with_companion(suffix: str) -> Callable[[Path, Path], Path]:
+    """A copy of the good database with a companion file (``-shm``, ``-wal``) beside it."""
+
+    def make(folder: Path, good: Path) -> Path:
+        path = _copy(folder, good)
+        path.with_name(path.name + suffix).write_bytes(b"\0" * 32768)
+        return path
+
+    return make
+
+
+def _model_and_database(folder: Path, good: Path) -> Path:
+    """A model in ``folder/sparse/0`` and the database at ``folder/database.db``."""
+    return _copy(_model(folder).parent.parent, good)
+
+
+def _model_database_and_link(folder: Path, good: Path) -> Path:
+    """As :func:`_model_and_database`, with ``folder/out.json`` a symlink to a model file."""
+    path = _model_and_database(folder, good)
+    (folder / "out.json").symlink_to(folder / "sparse" / "0" / "images.bin")
+    return path
+
+
+def _model_database_and_empty_output(folder: Path, good: Path) -> Path:
+    """As :func:`_model_and_database`, with an empty folder ``folder/out``."""
+    path = _model_and_database(folder, good)
+    (folder / "out").mkdir()
+    return path
+
+
+def _calibrate_model(*args: object) -> Callable[[Path, Path, Path], tuple]:
+    """``calibrate PATH --model FOLDER/sparse/0 --output WORKSPACE ARGS``."""
+    return lambda f, p, w: ("calibrate", p, "--model", f / "sparse" / "0", "--output", w, *args)
+
+
+def _file(folder: Path, _good: Path) -> Path:
+    path = folder / "notes.txt"
+    path.write_text("mine\n")
+    return path
+
+
 CASES: dict[str, Case] = {
     "missing path": Case(lambda folder, _: folder / "nope.db", "database not found"),
     "directory": Case(lambda folder, _: folder, "is a directory"),
@@ -706,6 +792,116 @@ CASES: dict[str, Case] = {
         _blob_edit("UPDATE cameras SET width = 0, height = 0"), "image size of 0x0"
     ),
     "hot rollback journal": Case(_hot_journal, "hot rollback journal"),
+    # ----- issue 22, items 1-3: no output is or holds an input (one rule, every command)
+    "run IMAGES is WORKSPACE/sparse, --overwrite": Case(
+        _images_in_sparse,
+        "IMAGES",
+        argv=lambda f, p, w: ("run", p, f, "--overwrite"),
+    ),
+    "run IMAGES is WORKSPACE/sparse through ..": Case(
+        _images_in_sparse,
+        "is inside the workspace output",
+        argv=lambda f, p, w: ("run", p / ".." / "sparse", f, "--overwrite"),
+    ),
+    "run IMAGES is a symlink to WORKSPACE/sparse": Case(
+        _link_to_images_in_sparse,
+        "is inside the workspace output",
+        argv=lambda f, p, w: ("run", p, f, "--overwrite"),
+    ),
+    "run images are symlinks into WORKSPACE/sparse": Case(
+        _images_linked_into_sparse,
+        "is inside the workspace output",
+        argv=lambda f, p, w: ("run", p, f, "--overwrite"),
+    ),
+    "run --png is an input image": Case(
+        lambda f, g: _images(f / "photos"),
+        "/photos/b.png is a file of IMAGES: refusing",
+        argv=lambda f, p, w: ("run", p, w, "--png", p / "b.png"),
+    ),
+    "run --png is a hard link to an input image": Case(
+        _images_and_hard_link,
+        "is a file of IMAGES (the same file as",
+        argv=lambda f, p, w: ("run", p, w, "--png", f / "out.png"),
+    ),
+    "calibrate --json is a file of --model": Case(
+        _model_and_database,
+        "is a file of --model: refusing",
+        argv=_calibrate_model("--json", "{folder}/sparse/0/points3D.bin"),
+    ),
+    "calibrate --json is a symlink to a file of --model": Case(
+        _model_database_and_link,
+        "is a file of --model (the same file as",
+        argv=_calibrate_model("--json", "{folder}/out.json"),
+    ),
+    "calibrate --json is the database's -shm": Case(
+        _with_companion("-shm"),
+        "database.db-shm is the database's companion file: refusing",
+        argv=lambda f, p, w: ("calibrate", p, "--json", f / "database.db-shm"),
+    ),
+    "run --png is the --database's -wal": Case(
+        _with_companion("-wal"),
+        "is the --database input's companion file",
+        argv=_run("--png", "{folder}/database.db-wal"),
+    ),
+    "run --png is WORKSPACE/report.json": Case(
+        lambda f, g: _images(f / "photos"),
+        "is also the workspace output",
+        argv=lambda f, p, w: ("run", p, f, "--png", f / "report.json"),
+    ),
+    "calibrate --json inside --output": Case(
+        _model_database_and_empty_output,
+        "is inside --output",
+        argv=lambda f, p, w: (
+            "calibrate",
+            p,
+            "--model",
+            f / "sparse" / "0",
+            "--output",
+            f / "out",
+            "--json",
+            f / "out" / "cameras.bin",
+        ),  # fmt: skip
+    ),
+    "DATABASE is ., with --json": Case(
+        _copy,
+        "database path is a directory: .",
+        argv=lambda f, p, w: ("calibrate", ".", "--json", f / "out.json"),
+    ),
+    # ----- issue 22, item 12: output paths checked before any work, so one line
+    "show --png into a missing folder": Case(
+        _models(),
+        "cannot write --png: folder",
+        argv=lambda f, p, w: ("show", p, "--png", w / "view.png"),
+    ),
+    "show --png in a folder no file can be made in": Case(
+        _models(),
+        "cannot write --png: folder /proc is not writable",
+        argv=lambda f, p, w: ("show", p, "--png", "/proc/view.png"),
+    ),
+    "--json in a folder no file can be made in": Case(
+        _copy, "cannot write --json: folder /proc is not writable", ("--json", "/proc/out.json")
+    ),
+    "calibrate --output in a folder no folder can be made in": Case(
+        _model_and_database,
+        "cannot write --output: folder /proc is not writable",
+        argv=lambda f, p, w: ("calibrate", p, "--model", f / "sparse" / "0", "--output", "/proc/m"),
+    ),
+    "synthetic --output is a file": Case(
+        _file,
+        "notes.txt is not a folder",
+        argv=lambda f, p, w: ("synthetic", "--runs", "1", "--methods", "direct", "--output", p),
+    ),
+    "demo --keep is a file": Case(
+        _file, "cannot write --keep: ", argv=lambda f, p, w: ("demo", "--keep", p)
+    ),
+    "run WORKSPACE in a folder no folder can be made in": Case(
+        lambda f, g: _images(f / "photos"),
+        "cannot write WORKSPACE: folder /proc is not writable",
+        argv=lambda f, p, w: ("run", p, "/proc/ws"),
+    ),
+    "run: an image is a dangling symlink (OpenCV's warning)": Case(
+        _dangling_image, "cannot read image", argv=lambda f, p, w: ("run", p, w)
+    ),
 }
 
 

@@ -9,8 +9,11 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import signal
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -18,7 +21,7 @@ import cv2
 import numpy as np
 import pycolmap
 import pytest
-from conftest import CliResult, require_rendering, run_cli, synthesize
+from conftest import CliResult, assert_one_error_line, require_rendering, run_cli, synthesize
 
 PARAMS = [1100.0, 1250.0, 530.0, 370.0]
 PRIOR = "1140,1210,545,360"
@@ -119,6 +122,7 @@ def test_show_renders_png(
     png = tmp_path / "view.png"
     result = run_main("show", workspace / "sparse" / "0", "--png", png)
     assert result.returncode == 0, result.stderr
+    assert result.stderr == ""  # Open3D's and Filament's own lines only with -vv
     image = cv2.imread(str(png))
     assert image is not None and image.shape[2] == 3
     assert (image < 250).any(axis=2).mean() > 0.002  # not a blank white background
@@ -144,3 +148,73 @@ def test_run_renders_png(
     image = cv2.imread(str(png))
     assert image is not None and (image < 250).any(axis=2).mean() > 0.002
     assert _sha256(database) == before  # the input was copied, not changed
+
+
+# --------------------------------------------------------------------------- the process itself
+
+
+def _close(fd: int) -> Callable[[], None]:
+    """In the child, before the interpreter starts: close file descriptor ``fd`` (``>&-``)."""
+    return lambda: os.close(fd)
+
+
+def test_closed_stdout_still_writes_the_json(database: Path, tmp_path: Path) -> None:
+    """``calibrate DB --json OUT >&-``: the JSON is written, the table dropped, exit 0."""
+    out = tmp_path / "result.json"
+    result = run_cli("calibrate", database, "--prior", PRIOR, "--json", out, preexec_fn=_close(1))
+    assert (result.returncode, result.stderr) == (0, "")
+    (entry,) = json.loads(out.read_text())
+    np.testing.assert_allclose([entry[k] for k in ("fx", "fy", "cx", "cy")], PARAMS, rtol=1e-5)
+
+
+def test_closed_stderr_still_writes_the_database(database: Path, tmp_path: Path) -> None:
+    """``calibrate DB --write 2>&-``: the database is written (backup first), exit 0."""
+    copy = tmp_path / "db.db"
+    copy.write_bytes(database.read_bytes())
+    result = run_cli("calibrate", copy, "--prior", PRIOR, "--write", preexec_fn=_close(2))
+    assert result.returncode == 0
+    assert "wrote 1 camera(s)" in result.stdout
+    assert (tmp_path / "db.db.bak").read_bytes() == database.read_bytes()
+    with pycolmap.Database.open(str(copy)) as db:
+        np.testing.assert_allclose(db.read_all_cameras()[0].params, PARAMS, rtol=1e-5)
+
+
+def test_closed_stdout_refuses_json_to_stdout(database: Path) -> None:
+    """``--json - >&-`` has nowhere to go: one line, status 2, before any work."""
+    before = _sha256(database)
+    result = run_cli("calibrate", database, "--json", "-", preexec_fn=_close(1))
+    assert_one_error_line(result, "cannot write --json -: standard output is closed")
+    assert _sha256(database) == before
+
+
+def test_closed_stderr_keeps_the_exit_status_of_an_error(tmp_path: Path) -> None:
+    """A refused input with stderr closed: status 2 (the line has nowhere to go)."""
+    result = run_cli("calibrate", tmp_path / "missing.db", preexec_fn=_close(2))
+    assert (result.returncode, result.stdout) == (2, "")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_terminated_extraction_prints_one_line(tmp_path: Path) -> None:
+    """SIGTERM while pycolmap extracts features: ``error: terminated`` and nothing else
+    (COLMAP's glog ERROR line ``Stopping thread...`` only with -vv), status 143."""
+    images = tmp_path / "images"
+    images.mkdir()
+    rng = np.random.default_rng(0)
+    for index in range(16):
+        cv2.imwrite(str(images / f"{index:02d}.png"), rng.integers(0, 256, (480, 640), np.uint8))
+    workspace = tmp_path / "ws"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "colmap_trifocal.cli", "run", str(images), str(workspace)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    deadline = time.monotonic() + 120
+    while not (workspace / "database.db").exists() and process.poll() is None:
+        assert time.monotonic() < deadline, "the extraction never started"
+        time.sleep(0.05)
+    time.sleep(0.5)  # inside the extraction
+    os.killpg(process.pid, signal.SIGTERM)
+    _, stderr = process.communicate(timeout=120)
+    assert (process.returncode, stderr.splitlines()) == (143, ["error: terminated"])

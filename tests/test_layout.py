@@ -17,8 +17,9 @@ PACKAGE = Path(colmap_trifocal.__file__).parent
 
 #: Sub-packages in the order data flows; a module may import its own stage or an earlier one.
 STAGES = ("common", "database", "geometry", "intrinsics", "reconstruction")
-#: Support packages sit after every stage: they may use any stage, no stage may use them.
-SUPPORT = ("synthetic", "datasets", "evaluation")
+#: Support packages sit after every stage: they may use any stage, no stage may use them;
+#: the command line (``cli``) comes last: it may use every package, none may use it.
+SUPPORT = ("synthetic", "datasets", "evaluation", "cli")
 
 
 def _imported_subpackages(path: Path) -> set[str]:
@@ -56,6 +57,16 @@ def test_stages_import_no_later_stage() -> None:
             for imported in _imported_subpackages(path):
                 if imported in (*STAGES, *SUPPORT) and _rank(imported) > _rank(sub):
                     offences.append(f"{path.relative_to(PACKAGE)} imports {imported}")
+    assert offences == []
+
+
+def test_only_the_command_line_imports_the_command_line() -> None:
+    """The library returns and raises; only ``cli/`` prints, so nothing imports it."""
+    offences = [
+        str(path.relative_to(PACKAGE))
+        for path in sorted(PACKAGE.rglob("*.py"))
+        if path.relative_to(PACKAGE).parts[0] != "cli" and "cli" in _imported_subpackages(path)
+    ]
     assert offences == []
 
 

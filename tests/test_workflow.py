@@ -51,6 +51,21 @@ def test_run_from_database(demo_database: tuple[Path, np.ndarray], tmp_path: Pat
     np.testing.assert_allclose(model.cameras[camera["camera_id"]].params, refined)
 
 
+def test_stages_go_to_the_callback_not_to_stderr(
+    demo_database: tuple[Path, np.ndarray], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The library prints nothing: each long stage is announced to ``on_stage`` (the
+    command line prints it)."""
+    source, _ = demo_database
+    stages: list[str] = []
+    run_pipeline(None, tmp_path / "ws", RunOptions(database=source), on_stage=stages.append)
+    assert stages == [
+        "mapping (pycolmap incremental)",
+        "bundle adjustment of focal lengths, principal points",
+    ]
+    assert capsys.readouterr() == ("", "")
+
+
 def test_refine_none_keeps_the_estimate(
     demo_database: tuple[Path, np.ndarray], tmp_path: Path
 ) -> None:

@@ -1,13 +1,17 @@
-"""Writing output files without ever leaving a truncated one behind."""
+"""Output files: written without ever leaving a truncated one, and never over an input."""
 
 from __future__ import annotations
 
 import os
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import CalibrationError
+
+#: SQLite's companion files of a database ``NAME``: ``NAME-wal``, ``NAME-shm``, ``NAME-journal``.
+SQLITE_COMPANIONS = ("-wal", "-shm", "-journal")
 
 
 def file_identity(path: Path | str) -> tuple[int, int] | None:
@@ -23,24 +27,132 @@ def file_identity(path: Path | str) -> tuple[int, int] | None:
     return st.st_dev, st.st_ino
 
 
-def refuse_overwriting_input(
-    output: Path | str, inputs: Iterable[Path | str], option: str, what: str = "an input"
-) -> None:
-    """Refuse an output path that is one of the command's input files.
+@dataclass(frozen=True)
+class Input:
+    """A path a command reads, and the files read through it.
 
-    Compares file identities (device and inode), so a symlink or a hard link to an input
-    is caught as well as the input's own path. Call it before any work is done.
+    ``name`` starts a refusal that concerns the path itself (``--model X is inside
+    ...``), ``what`` names one of its files in a refusal (``... is a file of --model``).
+    """
+
+    name: str
+    path: Path
+    what: str
+    files: tuple[Path, ...]
+
+    @classmethod
+    def database(cls, path: Path, name: str = "DATABASE", what: str = "the database") -> Input:
+        """A SQLite database with its companion files (``-wal``, ``-shm``, ``-journal``)."""
+        companions = [Path(f"{path}{suffix}") for suffix in SQLITE_COMPANIONS]
+        return cls(name, path, what, (path, *companions))
+
+    @classmethod
+    def folder(cls, path: Path, name: str, suffixes: Sequence[str] | None = None) -> Input:
+        """A folder whose files (directly in it; with one of ``suffixes``, lower case, if
+        given) are read: an image folder, a COLMAP model folder."""
+        files = (
+            tuple(
+                p
+                for p in sorted(path.iterdir())
+                if p.is_file() and (suffixes is None or p.suffix.lower() in suffixes)
+            )
+            if path.is_dir()
+            else ()
+        )
+        return cls(name, path, f"a file of {name}", files)
+
+
+@dataclass(frozen=True)
+class Output:
+    """A path a command writes: a file it replaces, or (``folder``) a folder it fills or
+    empties.
+
+    ``option`` starts the refusal (``--json OUT is ...``); ``hint`` ends it.
+    """
+
+    option: str
+    path: Path
+    hint: str = ""
+    folder: bool = False
+
+
+def refuse_outputs_over_inputs(outputs: Iterable[Output], inputs: Iterable[Input]) -> None:
+    """The rule that no output overwrites or deletes an input; call it before any work.
+
+    An existing output is refused when it is the same file as one of the inputs' files
+    (device and inode: a symlink, a hard link, a ``..`` detour or a relative path to an
+    input is caught as well as its own path), and, when it is a folder (replaced or
+    emptied), when any input or input file lies inside it (its real path below the
+    folder; a symlink into the folder counts). An output that does not exist yet
+    replaces nothing: a new file inside an input folder is allowed. The outputs are
+    also checked against each other (:func:`_refuse_overlapping_outputs`).
 
     Raises:
-        CalibrationError: ``output`` exists and is the same file as one of ``inputs``.
+        CalibrationError: an output is an input, or holds one, or is another output.
     """
-    target = file_identity(output)
-    if target is None:
+    outputs = list(outputs)
+    _refuse_overlapping_outputs(outputs)
+    existing = [(output, file_identity(output.path)) for output in outputs]
+    files = {identity: output for output, identity in existing if identity is not None}
+    folders = {identity: output for identity, output in files.items() if os.path.isdir(output.path)}
+    if not files:
         return
-    for path in inputs:
-        if file_identity(path) == target:
-            same = "" if os.fspath(path) == os.fspath(output) else f" (the same file as {path})"
-            raise CalibrationError(f"{option} {output} is {what}{same}: refusing to overwrite it")
+    seen: dict[Path, tuple[int, int] | None] = {}  # identities of the folders above inputs
+    for given in inputs:
+        for path in (given.path, *given.files):
+            identity = file_identity(path)
+            if identity is None:
+                continue
+            output = files.get(identity)
+            if output is not None and identity not in folders:
+                same = (
+                    ""
+                    if os.fspath(path) == os.fspath(output.path)
+                    else f" (the same file as {path})"
+                )
+                what = given.what
+                if path != given.path and not os.path.isdir(given.path):
+                    what = f"{what}'s companion file"  # SQLite's -wal, -shm, -journal
+                raise CalibrationError(
+                    f"{output.option} {output.path} is {what}{same}: "
+                    f"refusing to overwrite it{output.hint}"
+                )
+            if not folders:
+                continue
+            for folder in _real_ancestors(path):
+                if folder not in seen:
+                    seen[folder] = file_identity(folder)
+                output = folders.get(seen[folder])  # type: ignore[arg-type]
+                if output is not None:
+                    raise CalibrationError(
+                        f"{given.name} {given.path} is inside {output.option} {output.path}: "
+                        f"refusing to overwrite it{output.hint}"
+                    )
+
+
+def _refuse_overlapping_outputs(outputs: Sequence[Output]) -> None:
+    """Refuse two outputs at one real path, or one inside a folder output (say a PNG
+    named ``WORKSPACE/report.json``: written after the report, it would replace it).
+    Compared by real path, since most outputs do not exist yet."""
+    real = [Path(os.path.realpath(output.path)) for output in outputs]
+    for i, output in enumerate(outputs):
+        for j, other in enumerate(outputs):
+            if i < j and real[i] == real[j]:
+                raise CalibrationError(
+                    f"{other.option} {other.path} is also {output.option} {output.path}: "
+                    "refusing to write it twice"
+                )
+            if other.folder and real[j] in real[i].parents:
+                raise CalibrationError(
+                    f"{output.option} {output.path} is inside {other.option} {other.path}: "
+                    f"refusing to overwrite it{other.hint}"
+                )
+
+
+def _real_ancestors(path: Path) -> list[Path]:
+    """``path`` with symlinks and ``..`` resolved, then each folder above it."""
+    real = Path(os.path.realpath(path))
+    return [real, *real.parents]
 
 
 def write_text_atomically(path: Path, text: str) -> None:

@@ -34,6 +34,7 @@ from ..common.errors import CalibrationError
 from ..common.log import logger
 from ..database.features import build_database
 from ..database.snapshot import DatabaseContents, read_database
+from ..datasets import read_scene
 from ..datasets.base import DatasetScene
 from ..intrinsics.calibrate import CalibrationOptions, calibrate_contents_methods
 from ..reconstruction.mapping import (
@@ -355,3 +356,22 @@ def evaluate_scene(scene: DatasetScene, options: EvaluationOptions) -> list[RunR
             options.progress,
         )
     return [record for records in results for record in records]
+
+
+def scenes_at(kind: str, path: Path) -> list[DatasetScene]:
+    """The scene at ``path``, or every scene in its sub-folders (CalibrationError if none)."""
+    if not path.exists():
+        raise CalibrationError(f"{path} does not exist")
+    try:
+        return [read_scene(kind, path)]
+    except CalibrationError as error:
+        scenes = []
+        if path.is_dir():
+            for child in sorted(p for p in path.iterdir() if p.is_dir()):
+                try:
+                    scenes.append(read_scene(kind, child))
+                except CalibrationError:
+                    continue
+        if not scenes:
+            raise error from None
+        return scenes

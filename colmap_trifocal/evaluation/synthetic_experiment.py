@@ -322,3 +322,10 @@ def run_synthetic_case(
     if BA_FLOOR in methods:
         by_method[BA_FLOOR] = _floor_record(scene, truth, prior, common, extra)
     return [by_method[m] for m in methods]
+
+
+def run_synthetic_task(task: tuple) -> list[RunRecord]:
+    """:func:`run_synthetic_case` on one task tuple ``(noise_px, run, seed, methods,
+    num_points, prior_fraction, outlier_ratio)``: the unit of work sent to the workers."""
+    noise, run, seed, methods, points, fraction, outliers = task
+    return run_synthetic_case(noise, run, seed, methods, points, fraction, outliers)

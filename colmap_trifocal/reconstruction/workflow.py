@@ -13,21 +13,23 @@ Stages, each timed in ``report.json``:
    mapping is retried with relaxed initialisation when it finds no initial pair
    or registers few images, seeded with the widest pair of the calibration's best
    triplets and COLMAP's forward-motion limit lifted (report.json ``mapping`` and
-   one stderr line say what was done, including the seeded pair); the largest
+   its ``note`` say what was done, including the seeded pair); the largest
    model written to ``WORKSPACE/sparse/0`` (or an existing model given with
    ``model``: the estimate is written into it instead);
 4. refine (``ba``, the default): global bundle adjustment of focal lengths and
    principal points with poses and points; ``none`` skips it.
+
+Nothing is printed: each stage is logged (package logger) and announced to an optional
+``on_stage`` callback; the command line shows them.
 """
 
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -36,7 +38,7 @@ import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
-from ..common.files import refuse_overwriting_input, write_text_atomically
+from ..common.files import Input, Output, refuse_outputs_over_inputs, write_text_atomically
 from ..common.log import logger
 from ..database.cameras import PINHOLE_MODELS, CameraInfo
 from ..database.features import build_database
@@ -128,35 +130,51 @@ def prepare_workspace(workspace: Path, overwrite: bool) -> None:
                 target.unlink()
 
 
-def check_inputs_survive(workspace: Path, options: RunOptions) -> None:
-    """Refuse a ``--database`` or ``--model`` that this run would overwrite or delete.
+def run_inputs(images: Path | None, options: RunOptions) -> list[Input]:
+    """What a run reads: the images (those directly in the folder), ``--database`` with
+    its SQLite companions, the files of ``--model``."""
+    inputs = []
+    if images is not None:
+        inputs.append(Input.folder(Path(images), "IMAGES", IMAGE_SUFFIXES))
+    if options.database is not None:
+        inputs.append(Input.database(Path(options.database), "--database", "the --database input"))
+    if options.model is not None:
+        inputs.append(Input.folder(Path(options.model), "--model"))
+    return inputs
 
-    The workspace's outputs (``database.db``, ``sparse/``, ``report.json``) are written,
-    and with ``--overwrite`` removed first: an input may be none of them (also not
-    through a symlink or a hard link) and may not lie inside ``sparse/``.
+
+def workspace_outputs(workspace: Path) -> list[Output]:
+    """The workspace's outputs (``database.db``, ``sparse/``, ``report.json``): written,
+    and with ``--overwrite`` removed first."""
+    return [
+        Output(
+            "the workspace output", workspace / name, " (use another WORKSPACE)", name == "sparse"
+        )
+        for name in WORKSPACE_OUTPUTS
+    ]
+
+
+def check_inputs_survive(images: Path | None, workspace: Path, options: RunOptions) -> None:
+    """Refuse a run that would overwrite or delete one of its inputs.
+
+    No workspace output may be an input file (also not through a symlink or a hard link),
+    and no input may lie inside one (``sparse/`` is removed with ``--overwrite``): see
+    :func:`~colmap_trifocal.common.files.refuse_outputs_over_inputs`.
     """
-    outputs = [workspace / name for name in WORKSPACE_OUTPUTS]
-    inputs = {"--database": options.database, "--model": options.model}
-    for option, given in inputs.items():
-        if given is None:
-            continue
-        for output in outputs:
-            refuse_overwriting_input(output, [given], "WORKSPACE output", f"the {option} input")
-            if output.is_dir() and _inside(given, output):
-                raise CalibrationError(
-                    f"{option} {given} is inside the workspace output {output}: "
-                    "refusing to overwrite it (use another WORKSPACE)"
-                )
+    refuse_outputs_over_inputs(workspace_outputs(workspace), run_inputs(images, options))
 
 
-def _inside(path: Path, folder: Path) -> bool:
-    """``path`` is ``folder`` or lies below it (symlinks resolved)."""
-    resolved, base = Path(os.path.realpath(path)), Path(os.path.realpath(folder))
-    return resolved == base or base in resolved.parents
+def run_pipeline(
+    images: Path | None,
+    workspace: Path,
+    options: RunOptions,
+    on_stage: Callable[[str], None] | None = None,
+) -> dict:
+    """Run all stages; returns the report (also written to ``WORKSPACE/report.json``).
 
-
-def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> dict:
-    """Run all stages; returns the report (also written to ``WORKSPACE/report.json``)."""
+    ``on_stage`` receives one line as each long stage starts (features, mapping, bundle
+    adjustment); the mapping's retries, if any, are described in ``report["mapping"]["note"]``.
+    """
     if options.refine not in REFINE_CHOICES:
         raise CalibrationError(
             f"unknown --refine {options.refine!r} (choose from {REFINE_CHOICES})"
@@ -165,7 +183,7 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
         raise CalibrationError(f"unknown --mapper {options.mapper!r} (choose from {MAPPERS})")
     if options.model is not None and options.database is None:
         raise CalibrationError("--model needs the --database its images were matched in")
-    check_inputs_survive(workspace, options)
+    check_inputs_survive(images, workspace, options)
     given_model = load_model(options.model) if options.model is not None else None
     names = list_images(images) if images is not None and options.database is None else None
     prepare_workspace(workspace, options.overwrite)
@@ -178,7 +196,7 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
         copy_database(options.database, database)  # with what is still in its -wal
     else:
         assert images is not None and names is not None
-        _stage(f"features and matching for {len(names)} images (pycolmap SIFT)", options.progress)
+        _stage(f"features and matching for {len(names)} images (pycolmap SIFT)", on_stage)
         build_database(
             images,
             database,
@@ -217,7 +235,7 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
                 reconstruction.cameras[camera_id].params = np.asarray(camera.params, float).tolist()
     else:
         with tempfile.TemporaryDirectory(dir=workspace) as tmp:
-            _stage(f"mapping (pycolmap {options.mapper})", options.progress)
+            _stage(f"mapping (pycolmap {options.mapper})", on_stage)
             if options.mapper == "global":
                 reconstruction = global_mapping(
                     database,
@@ -250,7 +268,7 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
         }
         retried = describe_attempts(attempts, seeded)
         if retried:
-            print(retried, file=sys.stderr, flush=True)
+            logger.info(retried)
             mapping["note"] = retried
     seconds["mapping"] = time.perf_counter() - start
 
@@ -259,7 +277,7 @@ def run_pipeline(images: Path | None, workspace: Path, options: RunOptions) -> d
         refined = "focal lengths, principal points" + (
             " and distortion" if refine["distortion"] else ""
         )
-        _stage(f"bundle adjustment of {refined}", options.progress)
+        _stage(f"bundle adjustment of {refined}", on_stage)
         refine_intrinsics(reconstruction, distortion=refine["distortion"])
     seconds["refine"] = time.perf_counter() - start
 
@@ -323,11 +341,11 @@ def seed_candidate_pairs(
     return list(dict.fromkeys((min(p), max(p)) for p in pairs))
 
 
-def _stage(message: str, progress: bool) -> None:
-    """Announce a long stage on stderr (with progress) and in the log."""
+def _stage(message: str, on_stage: Callable[[str], None] | None) -> None:
+    """Announce a long stage in the log and to ``on_stage``."""
     logger.info(message)
-    if progress:
-        print(f"{message} ...", file=sys.stderr, flush=True)
+    if on_stage is not None:
+        on_stage(message)
 
 
 def build_report(
@@ -387,21 +405,3 @@ def build_report(
         "cameras": cameras,
         "seconds": seconds,
     }
-
-
-def format_report(report: dict) -> str:
-    """Human-readable summary of a report: per camera estimate vs refined, and timings."""
-    lines = [
-        f"registered {report['num_registered_images']}/{report['num_images']} images, "
-        f"{report['num_points3D']} points, mean reprojection error "
-        f"{report['mean_reprojection_error_px']:.3f} px",
-        f"{'camera':>6} {'':>9} {'fx':>10} {'fy':>10} {'cx':>10} {'cy':>10}",
-    ]
-    for camera in report["cameras"]:
-        for label in ("trifocal", "refined", "difference"):
-            values = " ".join(f"{camera[label][name]:>10.2f}" for name in PARAMETER_NAMES)
-            lines.append(f"{camera['camera_id']:>6} {label:>9} {values}")
-    lines.append(
-        "seconds: " + ", ".join(f"{stage} {t:.1f}" for stage, t in report["seconds"].items())
-    )
-    return "\n".join(lines)

@@ -1,0 +1,17 @@
+"""The command line, ``colmap-trifocal COMMAND``: one module per command, and what they share.
+
+Takes every stage; no stage takes anything from it. Each command module
+(:mod:`.calibrate`, :mod:`.run`, :mod:`.show`, :mod:`.demo`, :mod:`.evaluate`,
+:mod:`.synthetic`) has ``add_parser`` and ``run``; :mod:`.app` holds the parser and
+:func:`main`, :mod:`.signals` the handling of SIGINT/SIGTERM/SIGHUP, :mod:`.output` the
+one-line messages, the standard streams and the output path checks. Only this package
+prints; the library returns results and raises :class:`CalibrationError`.
+
+Exit status 0 on success. Input problems print one line ``error: ...`` on stderr and
+exit with status 2 (130 when interrupted by Ctrl-C, 143 on SIGTERM, 129 on SIGHUP); no
+traceback.
+"""
+
+from .app import build_parser, main
+
+__all__ = ["build_parser", "main"]

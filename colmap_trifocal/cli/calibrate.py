@@ -1,0 +1,226 @@
+"""``colmap-trifocal calibrate DATABASE``: the intrinsics of a database's cameras.
+
+Prints a table (one line per camera group), then writes the outputs in this order: the
+model copy (``--model``/``--output``), the JSON (``--json``), the database (``--write``,
+last, so a failing output never leaves a changed database behind). Every argument and
+output path is checked before the database is read.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, TextIO
+
+from ..common.arguments import seed
+from ..common.errors import CalibrationError
+from ..common.files import Input, Output, refuse_outputs_over_inputs
+from .output import check_output_file, check_output_folder, is_stdout, warn, write_text_output
+
+if TYPE_CHECKING:
+    from ..intrinsics.calibrate import CalibrationOptions, GroupCalibration, SkippedGroup
+
+
+def add_parser(commands: argparse._SubParsersAction) -> None:
+    """``calibrate DATABASE``: the contract in DESIGN.md."""
+    from ..database.camera_groups import GROUPINGS
+    from ..intrinsics.calibrate import METHODS, CalibrationOptions
+    from ..reconstruction.mapping import REFINE_CHOICES
+
+    calibrate = commands.add_parser(
+        "calibrate", help="estimate the intrinsics of the cameras of a COLMAP database"
+    )
+    calibrate.add_argument("database", type=Path, help="COLMAP database with verified matches")
+    calibrate.add_argument("--method", choices=METHODS, default="msac-opt")
+    calibrate.add_argument(
+        "--prior",
+        metavar="FX,FY,CX,CY",
+        help="starting intrinsics in pixels (default: the camera stored in the database)",
+    )
+    calibrate.add_argument(
+        "--camera-id",
+        type=int,
+        action="append",
+        dest="camera_ids",
+        metavar="ID",
+        help="calibrate only the group of this camera (repeatable)",
+    )
+    calibrate.add_argument(
+        "--group",
+        choices=GROUPINGS,
+        default="auto",
+        help="camera ids sharing intrinsics: auto (same model, size and stored parameters; "
+        "default), camera (each camera id alone), all (every image one camera)",
+    )
+    calibrate.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
+    calibrate.add_argument(
+        "--json",
+        type=Path,
+        metavar="OUT",
+        help="write the results as JSON (-: to stdout, the table then goes to stderr)",
+    )
+    calibrate.add_argument(
+        "--write",
+        action="store_true",
+        help="store the estimate in the database (a backup <name>.bak is made first)",
+    )
+    calibrate.add_argument("--max-triplets", type=int, default=CalibrationOptions.max_triplets)
+    calibrate.add_argument(
+        "--no-prior",
+        action="store_true",
+        help="ignore the stored camera: start from f = 1.2 · max(width, height), centred",
+    )
+    calibrate.add_argument(
+        "--no-focal-search",
+        action="store_true",
+        help="start the tensors from the prior's focal length instead of searching it",
+    )
+    calibrate.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    calibrate.add_argument(
+        "--model",
+        type=Path,
+        metavar="DIR",
+        help="existing COLMAP model of this database: write the estimate into a copy (--output)",
+    )
+    calibrate.add_argument(
+        "--output", type=Path, metavar="DIR", help="new folder for the model written with --model"
+    )
+    calibrate.add_argument(
+        "--refine",
+        choices=REFINE_CHOICES,
+        help="with --model: bundle adjustment of focal lengths and principal points (default ba)",
+    )
+    calibrate.add_argument(
+        "--refine-distortion",
+        action="store_true",
+        help="with --model --refine ba: also refine the distortion parameters",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Check everything, calibrate, print the table, write the outputs; exit status 0."""
+    from ..intrinsics.calibrate import (
+        add_read_seconds,
+        calibrate_groups,
+        check_options,
+        read_contents,
+        updated_cameras,
+        write_calibrations,
+    )
+
+    options = _options(args)
+    _check_arguments(args)
+    json_to_stdout = args.json is not None and is_stdout(args.json)
+    check_options(options)
+    contents, read_seconds = read_contents(args.database)
+    by_method, skipped = calibrate_groups(contents, options, (options.method,))
+    results = by_method[options.method]
+    add_read_seconds(results, read_seconds)
+    # With the JSON on stdout, the table and messages go to stderr: stdout stays JSON.
+    out = sys.stderr if json_to_stdout else sys.stdout
+    _print_table(results, skipped, out)
+    update = None
+    if args.model is not None:
+        from ..reconstruction.into_model import calibrate_model
+
+        update = calibrate_model(
+            args.model,
+            args.output,
+            updated_cameras(results),
+            args.refine or "ba",
+            args.refine_distortion,
+        )
+        print(update.describe(), file=out)
+    if args.json is not None:
+        entries = [r.to_json() for r in results] + [g.to_json() for g in skipped]
+        if update is not None:
+            for entry in entries:
+                entry["model"] = update.to_json()
+        write_text_output(args.json, json.dumps(entries, indent=2) + "\n", json_to_stdout)
+    if args.write:
+        written = write_calibrations(args.database, results)
+        if written:
+            print(f"wrote {written} camera(s) to {args.database}", file=out)
+        for r in results:
+            if not r.determined_anything:
+                print(
+                    f"camera {r.camera_id} not written: the images determine none of its values",
+                    file=out,
+                )
+    return 0
+
+
+def _options(args: argparse.Namespace) -> CalibrationOptions:
+    """The calibration's options from the flags (CalibrationError on a bad value)."""
+    from ..intrinsics.calibrate import CalibrationOptions, parse_prior
+
+    return CalibrationOptions(
+        method=args.method,
+        prior=parse_prior(args.prior) if args.prior is not None else None,
+        camera_ids=args.camera_ids,
+        seed=args.seed,
+        max_triplets=args.max_triplets,
+        focal_search=not args.no_focal_search,
+        no_prior=args.no_prior,
+        progress=not args.no_progress and sys.stderr.isatty(),
+        group=args.group,
+    )
+
+
+def _check_arguments(args: argparse.Namespace) -> None:
+    """The flags that go together, and every output: writable, and no input overwritten
+    (the database itself is the one output of ``--write``)."""
+    from ..database.snapshot import check_writable
+
+    if args.max_triplets < 1:
+        raise CalibrationError("--max-triplets must be at least 1")
+    if (args.model is None) != (args.output is None):
+        raise CalibrationError("--model and --output go together")
+    if args.model is None and (args.refine is not None or args.refine_distortion):
+        raise CalibrationError("--refine and --refine-distortion need --model and --output")
+    if args.refine_distortion and args.refine == "none":
+        raise CalibrationError("--refine-distortion needs --refine ba")
+    inputs = [Input.database(args.database)]
+    outputs = []
+    if args.model is not None:
+        from ..reconstruction import into_model
+
+        into_model.check_output_folder(args.output, args.model)
+        check_output_folder(args.output, "--output")
+        into_model.read_model(args.model)  # a one-line error now, not after the calibration
+        inputs.append(Input.folder(args.model, "--model"))
+        outputs.append(Output("--output", args.output, folder=True))
+    if args.json is not None:
+        check_output_file(args.json, "--json")
+        if not is_stdout(args.json):
+            outputs.append(Output("--json", args.json))
+    refuse_outputs_over_inputs(outputs, inputs)
+    if args.write:  # refuse a read-only database now, not after the calibration
+        check_writable(args.database)
+
+
+def _print_table(results: list[GroupCalibration], skipped: list[SkippedGroup], out: TextIO) -> None:
+    """One line per camera group to ``out``; warnings and skipped groups to stderr."""
+    from ..database.camera_groups import format_ids
+
+    print(
+        f"{'camera':>6} {'model':<14} {'method':<11} {'fx':>10} {'fy':>10} {'cx':>10} "
+        f"{'cy':>10} {'triplets':>9} {'time':>7} {'ids':>4}",
+        file=out,
+    )
+    for r in results:
+        print(
+            f"{r.camera_id:>6} {r.model:<14} {r.method:<11} {r.fx:>10.2f} {r.fy:>10.2f} "
+            f"{r.cx:>10.2f} {r.cy:>10.2f} {r.num_inlier_triplets:>4}/{r.num_triplets:<4} "
+            f"{r.seconds:>6.1f}s {len(r.camera_ids):>4}",
+            file=out,
+        )
+        if len(r.camera_ids) > 1:
+            print(f"{'':>6} shared by camera ids {format_ids(r.camera_ids)}", file=out)
+        warning = r.warning()
+        if warning is not None:
+            warn(warning)
+    for group in skipped:
+        warn(group.message())

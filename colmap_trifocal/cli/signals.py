@@ -1,0 +1,99 @@
+"""Signals on the command line: SIGINT, SIGTERM and SIGHUP end a run with one ``error:`` line.
+
+All three end a run the same way: the write in progress is rolled back (or, once COMMIT
+has started, finished: :func:`colmap_trifocal.common.errors.interrupts_deferred`) and one
+line is printed, ``error: interrupted`` (exit 130), ``error: terminated`` (143) or
+``error: terminated (hangup)`` (129). A signal the caller ignores (``nohup``, a
+background job's SIGINT) stays ignored.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+from ..common.errors import TERMINATING_SIGNALS
+from .output import one_line
+
+
+class InterruptWatch:
+    """Handler of SIGINT, SIGTERM and SIGHUP: raises KeyboardInterrupt and remembers the signal.
+
+    Some libraries turn the KeyboardInterrupt into another exception, e.g. pycolmap's C++
+    module, interrupted while it loads, fails with an ``ImportError``/``RuntimeError``;
+    :func:`colmap_trifocal.cli.main` still reports such a run as interrupted.
+    """
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+
+    @property
+    def received(self) -> bool:
+        """A signal has arrived (whatever exception it turned into)."""
+        return self.signum is not None
+
+    def __call__(self, signum: int, frame: object) -> None:
+        if self.signum is None:
+            self.signum = signum
+        raise KeyboardInterrupt
+
+    def install(self) -> dict[int, Any]:
+        """Install for every signal not ignored (``nohup``); the previous handlers."""
+        return {
+            signum: signal.signal(signum, self)
+            for signum in TERMINATING_SIGNALS
+            if signal.getsignal(signum) is not signal.SIG_IGN
+        }
+
+
+@contextmanager
+def watching_signals() -> Iterator[InterruptWatch]:
+    """An :class:`InterruptWatch` installed for the block (main thread only), then the
+    previous handlers put back."""
+    watch = InterruptWatch()
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    previous = watch.install() if in_main_thread else {}
+    try:
+        yield watch
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+@contextmanager
+def glog_cannot_take_sigterm(watch: InterruptWatch) -> Iterator[None]:
+    """Hold SIGTERM back while pycolmap loads; then install ``watch`` for it again.
+
+    Importing pycolmap installs glog's failure handler for SIGTERM (and SIGSEGV, ...),
+    which ends the process with a stack dump and no clean-up. A SIGTERM that arrives
+    meanwhile stays pending (``pthread_sigmask``) and reaches ``watch`` afterwards.
+    """
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    if not in_main_thread or signal.getsignal(signal.SIGTERM) is not watch:
+        yield
+        return
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, watch)
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+
+
+def report_interrupted(exc: BaseException, signum: int | None = None) -> int:
+    """Print the one line for an interrupted run; its exit status (128 + the signal).
+
+    Ctrl-C (SIGINT, also ``signum`` None) is "interrupted", SIGTERM and SIGHUP
+    "terminated"; the exception's text, if any, follows in parentheses.
+    """
+    detail = f" ({exc})" if isinstance(exc, KeyboardInterrupt) and str(exc) else ""
+    signum = signal.SIGINT if signum is None else signum
+    word = "interrupted" if signum == signal.SIGINT else "terminated"
+    if signum == signal.SIGHUP:
+        detail = f" (hangup){detail}"
+    print(one_line(f"error: {word}{detail}"), file=sys.stderr)
+    return 128 + int(signum)
