@@ -132,19 +132,20 @@ def turntable(
     return scene
 
 
-def with_radial_distortion(scene: SyntheticScene, k1: float) -> SyntheticScene:
-    """The scene seen through a lens with COLMAP ``SIMPLE_RADIAL`` distortion ``k1``.
+def with_radial_distortion(scene: SyntheticScene, k1: float, k2: float = 0.0) -> SyntheticScene:
+    """The scene seen through a lens with COLMAP ``RADIAL`` distortion ``(k1, k2)``
+    (``SIMPLE_RADIAL`` where ``k2 = 0``).
 
-    Each observed pixel ``p`` becomes ``c + f · u · (1 + k1 · |u|²)`` with
-    ``u = (p − c) / f`` (normalised coordinates; f and c of the scene's camera, the
-    model of COLMAP's ``SIMPLE_RADIAL``); the noise already in ``p`` is distorted
-    with it. ``k1 < 0`` is barrel distortion. Returns a copy (observations only).
+    Each observed pixel ``p`` becomes ``c + f · u · (1 + k1 ρ + k2 ρ²)`` with
+    ``u = (p − c) / f`` and ``ρ = |u|²`` (normalised coordinates; f and c of the scene's
+    camera); the noise already in ``p`` is distorted with it. ``k1 < 0`` is barrel
+    distortion. Returns a copy (observations only).
     """
     f = np.asarray(scene.intrinsics[:2], dtype=float)
     centre = np.asarray(scene.intrinsics[2:4], dtype=float)
     normalised = (scene.observations - centre) / f
     radius2 = np.sum(normalised**2, axis=-1, keepdims=True)
-    distorted = centre + f * normalised * (1.0 + k1 * radius2)
+    distorted = centre + f * normalised * (1.0 + k1 * radius2 + k2 * radius2**2)
     shape = scene.observations.shape[:2]
     observed = np.ones(shape, dtype=bool) if scene.visible is None else scene.visible
     return replace(scene, observations=np.where(observed[..., None], distorted, 0.0))

@@ -1,0 +1,118 @@
+"""Lenses whose distortion the stored camera does not hold: accuracy, k and std coverage.
+
+Issue 26's synthetic lens class, each calibrated from COLMAP's default camera (f = 1.2 ·
+max(w, h), centred, distortion 0) of the model named, msac-opt, one seed per run:
+
+* ``handheld-<k1>``: the 17-frame 63° handheld set (``handheld_indoor``), SIMPLE_RADIAL,
+  k1 in {0, −0.01, −0.05, −0.1} and the pincushion +0.05;
+* ``wide-100``: an 8-view 100° ring (``wide_lens``), RADIAL, k1 = −0.25, k2 = +0.05;
+* ``pinhole-0.05``: the handheld set at k1 = −0.05 through a PINHOLE camera (which
+  stays pinhole: the std must cover the bias).
+
+Per class: mean and worst |error| of f and of the principal point (% of f), k against
+the truth, the share of |error| / std ≤ 2 over every reported std (coverage), how
+often the distortion counted as present, and runs where a parameter reported
+determined ended further from the truth than the start (must be 0).
+
+    python benchmarks/lenses.py [--classes handheld-0,...] [--seeds 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+from tqdm import tqdm
+
+from colmap_trifocal import CalibrationOptions, calibrate_contents
+from colmap_trifocal.database.cameras import CameraInfo
+from colmap_trifocal.synthetic.database import CAMERA_ID, scene_contents
+from colmap_trifocal.synthetic.lenses import wide_lens, with_radial_distortion
+from colmap_trifocal.synthetic.motions import handheld_indoor
+
+NAMES = ("fx", "fy", "cx", "cy")
+CLASSES = {
+    "handheld-0": (handheld_indoor, "SIMPLE_RADIAL", (0.0, 0.0)),
+    "handheld-0.01": (handheld_indoor, "SIMPLE_RADIAL", (-0.01, 0.0)),
+    "handheld-0.05": (handheld_indoor, "SIMPLE_RADIAL", (-0.05, 0.0)),
+    "handheld-0.1": (handheld_indoor, "SIMPLE_RADIAL", (-0.1, 0.0)),
+    "pincushion+0.05": (handheld_indoor, "SIMPLE_RADIAL", (0.05, 0.0)),
+    "wide-100": (wide_lens, "RADIAL", (-0.25, 0.05)),
+    "pinhole-0.05": (handheld_indoor, "PINHOLE", (-0.05, 0.0)),
+}
+
+
+def default_camera_contents(make, model: str, k: tuple[float, float], seed: int):
+    """The scene through the lens, stored as COLMAP's default camera of ``model``."""
+    scene = with_radial_distortion(make(seed=seed), *k)
+    contents = scene_contents(scene)
+    width, height = scene.width, scene.height
+    f, cx, cy = 1.2 * max(width, height), width / 2, height / 2
+    params = {
+        "SIMPLE_RADIAL": [f, cx, cy, 0.0],
+        "RADIAL": [f, cx, cy, 0.0, 0.0],
+        "PINHOLE": [f, f, cx, cy],
+    }[model]
+    contents.cameras[CAMERA_ID] = CameraInfo(CAMERA_ID, model, width, height, params)
+    return contents, scene.intrinsics, np.array([f, f, cx, cy])
+
+
+def run_class(name: str, seeds: int) -> dict:
+    make, model, k = CLASSES[name]
+    rows = []
+    for seed in tqdm(range(seeds), desc=name, leave=False):
+        contents, truth, start = default_camera_contents(make, model, k, seed)
+        (result,) = calibrate_contents(contents, CalibrationOptions(no_prior=True, seed=seed))
+        error = result.intrinsics - truth
+        z = [
+            abs(error[i]) / result.std[n]
+            for i, n in enumerate(NAMES)
+            if result.std[n] is not None and result.std[n] > 0
+        ]
+        worse = [
+            n
+            for i, n in enumerate(NAMES)
+            if result.observable[n] and abs(error[i]) > abs(start[i] - truth[i])
+        ]
+        lens = result.lens_distortion or {}
+        rows.append(
+            {
+                "f": 100 * abs(error[0]) / truth[0],
+                "c": 100 * np.max(np.abs(error[2:])) / truth[0],
+                "k1": (lens.get("params") or [np.nan])[0] if lens.get("present") else 0.0,
+                "z": z,
+                "present": bool(lens.get("present")),
+                "worse": worse,
+                "determined": sum(result.observable.values()),
+            }
+        )
+    z = np.concatenate([r["z"] for r in rows]) if rows else np.zeros(0)
+    k1 = np.array([r["k1"] for r in rows])
+    f = np.array([r["f"] for r in rows])
+    return {
+        "class": name,
+        "f mean/worst %": f"{f.mean():.2f} / {f.max():.2f}",
+        "c worst %": f"{max(r['c'] for r in rows):.2f}",
+        "k1 (truth)": f"{np.mean(k1):+.4f} ± {np.std(k1):.4f} ({k[0]:+.2f})",
+        "coverage ±2σ": f"{100 * np.mean(z <= 2):.0f} % of {len(z)}",
+        "present": f"{sum(r['present'] for r in rows)}/{len(rows)}",
+        "determined": f"{np.mean([r['determined'] for r in rows]):.1f}/4",
+        "worse than start": sum(bool(r["worse"]) for r in rows),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--classes", default=",".join(CLASSES))
+    parser.add_argument("--seeds", type=int, default=5)
+    args = parser.parse_args()
+    table = [run_class(name, args.seeds) for name in args.classes.split(",")]
+    header = list(table[0])
+    print("| " + " | ".join(header) + " |")
+    print("|" + "---|" * len(header))
+    for row in table:
+        print("| " + " | ".join(str(row[h]) for h in header) + " |")
+
+
+if __name__ == "__main__":
+    main()
