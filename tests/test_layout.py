@@ -124,6 +124,7 @@ PUBLIC_API = {
     "calibrate_contents_methods",
     "calibrate_database",
     "calibrate_groups",
+    "calibrate_reconstruction",
 }
 
 

@@ -36,7 +36,7 @@ import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
-from .model_files import check_binary_model
+from ..database.from_reconstruction import read_reconstruction
 
 if TYPE_CHECKING:
     import open3d
@@ -57,8 +57,6 @@ KEEP_QUANTILE = 0.99
 _COLORMAP = np.array(
     [[0.0, 0.0, 1.0], [0.0, 0.8, 1.0], [0.0, 0.8, 0.0], [1.0, 0.8, 0.0], [1.0, 0.0, 0.0]]
 )
-
-_MODEL_FILES = ("cameras", "images", "points3D")
 
 _PROBE = (
     "import open3d as o3d\n"
@@ -84,24 +82,9 @@ def load_model(path: Path) -> pycolmap.Reconstruction:
 
     Raises:
         CalibrationError: the folder is missing, lacks cameras/images/points3D files,
-            or they cannot be parsed.
+            or they cannot be parsed (:func:`..database.from_reconstruction.read_reconstruction`).
     """
-    path = Path(path)
-    if not path.is_dir():
-        raise CalibrationError(f"model folder not found: {path}")
-    missing = [
-        name
-        for name in _MODEL_FILES
-        if not any((path / f"{name}{ext}").is_file() for ext in (".bin", ".txt"))
-    ]
-    if missing:
-        raise CalibrationError(f"not a COLMAP model (no {', '.join(missing)} .bin/.txt) in {path}")
-    check_binary_model(path)  # before pycolmap, which trusts the counts in the files
-    try:
-        return pycolmap.Reconstruction(str(path))
-    except (ValueError, RuntimeError, MemoryError, OSError, IndexError) as exc:
-        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise CalibrationError(f"cannot read the COLMAP model in {path}: {reason}") from exc
+    return read_reconstruction(Path(path))
 
 
 def registration_colors(count: int) -> np.ndarray:
