@@ -111,6 +111,14 @@ def test_too_few_registered_images(tmp_path: Path) -> None:
         calibrate_reconstruction(reconstruction)
 
 
+def test_non_finite_keypoints(tmp_path: Path) -> None:
+    reconstruction = synthesize(tmp_path / "s.db", frames=6, points=100)
+    image = reconstruction.image(3)
+    image.points2D[5].xy = np.array([np.nan, 10.0])
+    with pytest.raises(CalibrationError, match="image 3 .* NaN or infinite"):
+        calibrate_reconstruction(reconstruction)
+
+
 def test_model_folder_errors(tmp_path: Path) -> None:
     with pytest.raises(CalibrationError, match="model folder not found"):
         calibrate_reconstruction(tmp_path / "nope")

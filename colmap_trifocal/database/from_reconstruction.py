@@ -155,7 +155,8 @@ def contents_from_reconstruction(reconstruction: pycolmap.Reconstruction) -> Dat
     """The calibration's input from a reconstruction's tracks (see the module docstring).
 
     Raises:
-        CalibrationError: fewer than 3 registered images, or no 3D point seen in two of them.
+        CalibrationError: fewer than 3 registered images, non-finite keypoints, or no 3D
+            point seen in two of them.
     """
     image_ids = sorted(int(i) for i in reconstruction.reg_image_ids())
     if len(image_ids) < MIN_IMAGES:
@@ -172,6 +173,12 @@ def contents_from_reconstruction(reconstruction: pycolmap.Reconstruction) -> Dat
         if camera_id not in contents.cameras:
             contents.cameras[camera_id] = CameraInfo.from_pycolmap(reconstruction.camera(camera_id))
     contents.keypoints, observations = _observations(reconstruction, image_ids)
+    for image_id, xy in contents.keypoints.items():
+        if not np.all(np.isfinite(xy)):
+            raise CalibrationError(
+                f"the reconstruction's image {image_id} ({contents.image_names[image_id]}) "
+                "has NaN or infinite keypoint coordinates"
+            )
     contents.matches = track_matches(observations)
     contents.rig_sensor_cameras = _rig_sensor_cameras(reconstruction)
     if not contents.matches:
