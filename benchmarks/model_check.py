@@ -20,7 +20,7 @@ from pathlib import Path
 import pycolmap
 
 from colmap_trifocal.common.errors import CalibrationError
-from colmap_trifocal.reconstruction.model_files import check_binary_model
+from colmap_trifocal.database.model_files import check_binary_model
 
 
 def _seconds(function, repeats: int = 3) -> float:

@@ -5,6 +5,11 @@ The public API mirrors the ``colmap-trifocal calibrate`` command::
     from colmap_trifocal import CalibrationOptions, calibrate_database
     results = calibrate_database("database.db", CalibrationOptions(method="msac-opt"))
     print(results[0].fx, results[0].std["fx"])
+    results[0].camera                     # a pycolmap.Camera with the estimate
+    results[0].apply(reconstruction)      # into a pycolmap.Reconstruction's cameras
+
+``calibrate_reconstruction(reconstruction_or_folder)`` calibrates from a
+reconstruction's tracks instead, beside its own intrinsics (``result.reference``).
 
 Conventions used throughout: intrinsics are (fx, fy, cx, cy) in pixels with
 COLMAP's pixel convention (the centre of the top-left pixel is at (0.5, 0.5));
@@ -31,6 +36,7 @@ if TYPE_CHECKING:
         calibrate_contents_methods,
         calibrate_database,
         calibrate_groups,
+        calibrate_reconstruction,
     )
 
 #: Loaded on first use (PEP 562), so that ``import colmap_trifocal.cli`` is quick and the
@@ -46,6 +52,7 @@ _PIPELINE_EXPORTS = frozenset(
         "calibrate_contents_methods",
         "calibrate_database",
         "calibrate_groups",
+        "calibrate_reconstruction",
     }
 )
 
@@ -70,4 +77,5 @@ __all__ = [
     "calibrate_contents_methods",
     "calibrate_database",
     "calibrate_groups",
+    "calibrate_reconstruction",
 ]

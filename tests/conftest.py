@@ -198,6 +198,52 @@ class DatabaseCache:
             shutil.rmtree(staging, ignore_errors=True)
             raise
 
+    def model(self, database: Path, image_dir: Path) -> Path:
+        """The largest model of pycolmap's incremental mapping of ``database`` (``sparse/0``).
+
+        Default mapper options on one thread (the same model on every machine), built
+        on a copy of the database; cached like the databases, keyed by the database's
+        sha256 and the pycolmap version. Read it, never write it.
+        """
+        recipe = {
+            "format": CACHE_FORMAT,
+            "pycolmap": pycolmap.__version__,
+            "database": _sha256_file(database),
+            "mapping": "incremental, 1 thread",
+        }
+        key = (
+            "model-" + hashlib.sha256(json.dumps(recipe, sort_keys=True).encode()).hexdigest()[:24]
+        )
+        entry = self.root / key
+        self.root.mkdir(parents=True, exist_ok=True)
+        with open(self.root / f"{key}.lock", "a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            if not (entry / "meta.json").is_file():
+                for stale in self.root.glob(f"{key}.building-*"):
+                    shutil.rmtree(stale, ignore_errors=True)
+                staging = Path(tempfile.mkdtemp(prefix=f"{key}.building-", dir=self.root))
+                try:
+                    copy = self.copy(database, staging / "database.db")
+                    options = pycolmap.IncrementalPipelineOptions()
+                    options.num_threads = 1
+                    models = pycolmap.incremental_mapping(
+                        copy, image_dir, staging / "mapping", options
+                    )
+                    if not models:
+                        pytest.fail(f"incremental mapping of {database} gave no model")
+                    best = max(models.values(), key=lambda m: m.num_reg_images())
+                    (staging / "sparse" / "0").mkdir(parents=True)
+                    best.write(staging / "sparse" / "0")
+                    shutil.rmtree(staging / "mapping")
+                    copy.unlink()
+                    (staging / "meta.json").write_text(json.dumps(recipe, indent=1))
+                    staging.chmod(0o755)
+                    os.rename(staging, entry)
+                except BaseException:
+                    shutil.rmtree(staging, ignore_errors=True)
+                    raise
+        return entry / "sparse" / "0"
+
     @staticmethod
     def copy(database: Path, target: Path) -> Path:
         """A private copy of a cached database (for a test that writes)."""
@@ -235,6 +281,20 @@ def strecha_database(
     def get(scene: str) -> tuple[Path, Path]:
         folder = strecha_root() / scene
         return database_cache.get(folder / "images", scene_images(folder)), folder
+
+    return get
+
+
+@pytest.fixture(scope="session")
+def strecha_model(
+    database_cache: DatabaseCache, strecha_database: Callable[[str], tuple[Path, Path]]
+) -> Callable[[str], tuple[Path, Path, Path]]:
+    """Factory: scene name -> (model folder, database, scene folder): pycolmap's incremental
+    mapping of :func:`strecha_database`'s database (:meth:`DatabaseCache.model`)."""
+
+    def get(scene: str) -> tuple[Path, Path, Path]:
+        database, folder = strecha_database(scene)
+        return database_cache.model(database, folder / "images"), database, folder
 
     return get
 

@@ -135,6 +135,7 @@ PUBLIC_API = {
     "calibrate_contents_methods",
     "calibrate_database",
     "calibrate_groups",
+    "calibrate_reconstruction",
 }
 
 

@@ -196,6 +196,8 @@ def test_inspect_shows_calibration_plots(inspect_run: Executed) -> None:
     assert "not determined by these images" in text
     assert "registered 10 of 10 images" in text
     assert "error against the truth" in text  # the comparison with bundle adjustment
+    assert "from the model's tracks" in text and "diff %" in text  # calibrate_reconstruction
+    assert "error against the truth: from the tracks" in text
     workspace = inspect_run.workdir / "inspect_calibration_output"
     assert (workspace / "sparse" / "0" / "cameras.bin").is_file()
     assert (workspace / "database.db.bak").is_file()  # the estimate was written to the copy

@@ -212,3 +212,127 @@ def test_show_opens_a_window_with_a_display(model, tmp_path: Path) -> None:
 def test_show_missing_model(tmp_path: Path) -> None:
     with pytest.raises(CalibrationError):
         visualize.show(tmp_path / "nope", tmp_path / "x.png")
+
+
+# --------------------------------------------------------------------------- framing, caption
+
+#: Far points of a handheld model: 2 % of the points, 50-500 scene sizes away.
+FAR_FRACTION = 0.02
+
+
+@pytest.fixture(scope="module")
+def handheld_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 6-frame handheld VGA set mapped by pycolmap, with 2 % far outlier points (as
+    nearly parallel rays triangulate them), written to ``sparse/0``."""
+    from colmap_trifocal.synthetic.database import scene_contents, write_database
+    from colmap_trifocal.synthetic.motions import handheld_indoor
+
+    folder = tmp_path_factory.mktemp("handheld")
+    (folder / "images").mkdir()
+    write_database(scene_contents(handheld_indoor(num_images=6, noise_px=0.5)), folder / "db.db")
+    options = pycolmap.IncrementalPipelineOptions()
+    options.num_threads = 1
+    options.mapper.init_min_tri_angle = 4.0
+    models = pycolmap.incremental_mapping(folder / "db.db", folder / "images", folder, options)
+    reconstruction = max(models.values(), key=lambda m: m.num_reg_images())
+    assert reconstruction.num_reg_images() == 6
+    xyz = np.array([p.xyz for p in reconstruction.points3D.values()])
+    size = float(np.linalg.norm(np.ptp(xyz, axis=0)))
+    rng = np.random.default_rng(0)
+    count = int(np.ceil(FAR_FRACTION * len(xyz)))
+    directions = rng.normal(size=(count, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    far = np.median(xyz, axis=0) + directions * size * rng.uniform(50, 500, (count, 1))
+    for point in far:
+        reconstruction.add_point3D(point, pycolmap.Track(), np.array([255, 0, 0], np.uint8))
+    sparse = folder / "sparse" / "0"
+    sparse.mkdir(parents=True)
+    reconstruction.write(sparse)
+    return sparse
+
+
+def _coverage(path: Path, top: int = 0, cell: int = 40) -> tuple[float, float, float, float]:
+    """How the drawing covers the image below row ``top``, on a grid of ``cell`` px squares.
+
+    Returns:
+        The share of squares with a non-white pixel, the width and height shares spanned
+        by those squares, and the share of non-white pixels.
+    """
+    import cv2
+
+    foreground = np.any(cv2.imread(str(path))[top:] < 250, axis=-1)
+    height, width = (n // cell * cell for n in foreground.shape)
+    grid = foreground[:height, :width].reshape(height // cell, cell, width // cell, cell)
+    occupied = grid.any(axis=(1, 3))
+    rows, cols = np.nonzero(occupied)
+    if len(rows) == 0:
+        return 0.0, 0.0, 0.0, 0.0
+    return (
+        float(occupied.mean()),
+        (np.ptp(cols) + 1) / occupied.shape[1],
+        (np.ptp(rows) + 1) / occupied.shape[0],
+        float(foreground.mean()),
+    )
+
+
+def test_far_points_do_not_shrink_the_view(handheld_model: Path, tmp_path: Path) -> None:
+    """The bulk of the points and the cameras fill the view; the far points are left out.
+
+    Measured: 17 % of the 40 px squares drawn on, spanning 86 % of the height, 1.1 % of
+    the pixels; framing every point left the model a dot (0.7 % of the squares, 0.004 %
+    of the pixels, the rest of the span made by single far points)."""
+    require_rendering()
+    out = visualize.show(handheld_model, tmp_path / "view.png")
+    caption = visualize.model_caption(visualize.load_model(handheld_model))
+    band = visualize.caption_band(caption, 1280).shape[0]
+    occupied, _, height_share, filled = _coverage(out, top=band)
+    assert occupied > 0.08
+    assert height_share > 0.75
+    assert filled > 0.005
+
+
+def test_frustum_scale_follows_the_framed_scene(handheld_model: Path, o3d: ModuleType) -> None:
+    """Far points change neither the frustum size nor what the view frames."""
+    reconstruction = visualize.load_model(handheld_model)
+    with_far = visualize.scene_geometry(reconstruction)
+    near_only = pycolmap.Reconstruction(reconstruction)
+    xyz = {i: p.xyz for i, p in near_only.points3D.items()}
+    centre = np.median(np.array(list(xyz.values())), axis=0)
+    for point_id, position in xyz.items():
+        if np.linalg.norm(position - centre) > 1e3:
+            near_only.delete_point3D(point_id)
+    assert near_only.num_points3D() < reconstruction.num_points3D()
+    without_far = visualize.scene_geometry(near_only)
+    size = [np.ptp(np.asarray(g[1].points), axis=0).max() for g in (with_far, without_far)]
+    assert size[0] == pytest.approx(size[1], rel=0.05)
+    centre_with, _, _ = visualize.view_for(with_far, 1280, 960)
+    centre_without, _, _ = visualize.view_for(without_far, 1280, 960)
+    scene = visualize.scene_size(np.asarray(without_far[0].points))
+    assert np.linalg.norm(centre_with - centre_without) < 0.05 * scene
+
+
+def test_caption_with_the_run_report(handheld_model: Path) -> None:
+    """Without a report the model's K; with a ``run`` report beside it, the estimate ± std."""
+    reconstruction = visualize.load_model(handheld_model)
+    lines = visualize.model_caption(reconstruction)
+    assert lines[0].startswith("6 of 6 images registered")
+    assert "camera 1 PINHOLE 640x480 (6 images), model: fx " in lines[1]
+    assert "\u00b1" not in lines[1]
+    report = {
+        "num_registered_images": 6,
+        "cameras": [
+            {
+                "camera_id": 1,
+                "num_registered_images": 6,
+                "trifocal": {"fx": 525.4, "fy": 525.6, "cx": 316.1, "cy": 242.7},
+                "trifocal_std": {"fx": 1.7, "fy": 2.0, "cx": 1.2, "cy": None},
+            }
+        ],
+    }
+    lines = visualize.model_caption(reconstruction, report)
+    assert lines[1] == (
+        "camera 1 (6 images), TrifocalCalib: fx 525.4 \u00b1 1.7, fy 525.6 \u00b1 2.0, "
+        "cx 316.1 \u00b1 1.2, cy 242.7 px"
+    )
+    report["num_registered_images"] = 5  # another model's report: not used
+    assert "model: fx" in visualize.model_caption(reconstruction, report)[1]

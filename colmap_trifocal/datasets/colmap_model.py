@@ -18,7 +18,7 @@ import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
-from ..reconstruction.model_files import check_binary_model
+from ..database.model_files import check_binary_model
 from .base import DatasetScene, GroundTruthView, one_line, require_dir
 
 #: Folder names skipped when naming the scene after the model's location.

@@ -9,13 +9,20 @@ tensor per triplet, and solves for (fx, fy, cx, cy) with the chosen method.
 Groups with fewer images are skipped (reported, not an error, while another
 group calibrates). With ``options.write`` the estimates are stored in every
 camera of each group (backup first, one transaction).
+
+``calibrate_reconstruction(model, options)`` does the same from a COLMAP
+reconstruction's tracks (:mod:`..database.from_reconstruction`); its results also
+carry the reconstruction's own intrinsics (``reference``) and are written back into
+a reconstruction with ``result.apply(reconstruction)``.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+
+import pycolmap
 
 from ..common.errors import CalibrationError
 from ..common.log import logger
@@ -23,6 +30,12 @@ from ..common.parallel import single_threaded_libraries
 from ..database.camera_groups import CameraGroup, group_cameras
 from ..database.cameras import (
     CameraInfo,
+)
+from ..database.from_reconstruction import (
+    contents_from_reconstruction,
+    grouping_cameras,
+    model_intrinsics,
+    read_reconstruction,
 )
 from ..database.snapshot import DatabaseContents, read_database, write_intrinsics
 from .camera_calibration import calibrate_camera
@@ -53,12 +66,7 @@ def calibrate_database(
     Raises:
         CalibrationError: bad input (see the message).
     """
-    options = CalibrationOptions() if options is None else options
-    if not isinstance(options, CalibrationOptions):
-        raise CalibrationError(
-            f"options must be a CalibrationOptions, got {type(options).__name__}"
-        )
-    check_options(options)
+    options = _checked_options(options)
     path = Path(path)
     contents, read_seconds = read_contents(path)
     results = calibrate_contents(contents, options)
@@ -66,6 +74,63 @@ def calibrate_database(
     if options.write:
         write_calibrations(path, results)
     return results
+
+
+def calibrate_reconstruction(
+    reconstruction: pycolmap.Reconstruction | Path | str,
+    options: CalibrationOptions | None = None,
+) -> list[GroupCalibration]:
+    """Estimate the intrinsics of a COLMAP reconstruction's cameras from its tracks.
+
+    Two observations of one 3D point in two registered images are a match; the 3D
+    points and poses are not used (:mod:`..database.from_reconstruction`). Without a
+    prior the start is the reconstruction's camera, and its distortion undistorts the
+    keypoints. Under ``group="auto"`` camera ids of one model and size whose focal
+    lengths agree within :data:`..database.from_reconstruction.MODEL_FOCAL_TOLERANCE`
+    are one camera (bundle adjustment refines each id on its own).
+
+    Args:
+        reconstruction: a ``pycolmap.Reconstruction`` (not changed), or a model folder
+            (``sparse/0``, binary or text).
+        options: as for :func:`calibrate_database`; ``write`` is refused (write the
+            estimate into a reconstruction with ``result.apply(reconstruction)``).
+
+    Returns:
+        One result per calibrated camera group, ordered by camera id, each with
+        ``reference``: the reconstruction's own (fx, fy, cx, cy), the mean over the group.
+
+    Raises:
+        CalibrationError: bad input (see the message).
+    """
+    options = _checked_options(options)
+    if options.write:
+        raise CalibrationError(
+            "options.write stores estimates in a database; write them into a "
+            "reconstruction with result.apply(reconstruction)"
+        )
+    clock = time.perf_counter()
+    if not isinstance(reconstruction, pycolmap.Reconstruction):
+        reconstruction = read_reconstruction(Path(reconstruction))
+    contents = contents_from_reconstruction(reconstruction)
+    read_seconds = time.perf_counter() - clock
+    grouping = grouping_cameras(contents.cameras) if options.group == "auto" else None
+    methods = (options.method,)
+    results = calibrate_groups(contents, options, methods, grouping=grouping)[0][options.method]
+    add_read_seconds(results, read_seconds)
+    for result in results:
+        result.reference = model_intrinsics(result.group_cameras)
+    return results
+
+
+def _checked_options(options: CalibrationOptions | None) -> CalibrationOptions:
+    """The options (defaults for None), checked; CalibrationError for another type."""
+    options = CalibrationOptions() if options is None else options
+    if not isinstance(options, CalibrationOptions):
+        raise CalibrationError(
+            f"options must be a CalibrationOptions, got {type(options).__name__}"
+        )
+    check_options(options)
+    return options
 
 
 def read_contents(path: Path | str) -> tuple[DatabaseContents, float]:
@@ -96,10 +161,8 @@ def updated_cameras(
     for r in results:
         if determined_only and not r.determined_anything:
             continue
-        if isinstance(r, GroupCalibration):
+        if isinstance(r, GroupCalibration) or r.stored_camera is not None:
             updated.update(r.updated_cameras())
-        elif r.stored_camera is not None:
-            updated[r.camera_id] = r.written_camera(r.stored_camera)
     return updated
 
 
@@ -145,15 +208,22 @@ def calibrate_contents_methods(
 
 
 def plan_groups(
-    contents: DatabaseContents, options: CalibrationOptions
+    contents: DatabaseContents,
+    options: CalibrationOptions,
+    grouping: Mapping[int, CameraInfo] | None = None,
 ) -> tuple[list[CameraGroup], list[SkippedGroup]]:
     """The groups to calibrate (``options.group``, ``options.camera_ids``), and those skipped.
 
+    ``grouping``: the cameras the grouping compares instead of ``contents.cameras``
+    (a reconstruction's, see :func:`..database.from_reconstruction.grouping_cameras`).
     A group with fewer than 3 images is skipped. Raises CalibrationError for an
     unknown camera id, and when no group has 3 images.
     """
     groups = group_cameras(
-        contents.cameras, contents.image_camera, options.group, contents.rig_sensor_cameras
+        contents.cameras if grouping is None else grouping,
+        contents.image_camera,
+        options.group,
+        contents.rig_sensor_cameras,
     )
     if options.camera_ids is not None:
         missing = sorted(set(options.camera_ids) - set(contents.cameras))
@@ -189,9 +259,14 @@ def _images(count: int) -> str:
 
 
 def calibrate_groups(
-    contents: DatabaseContents, options: CalibrationOptions, methods: tuple[str, ...]
+    contents: DatabaseContents,
+    options: CalibrationOptions,
+    methods: tuple[str, ...],
+    grouping: Mapping[int, CameraInfo] | None = None,
 ) -> tuple[dict[str, list[GroupCalibration]], list[SkippedGroup]]:
     """Calibrate every group with each of ``methods``; also return the skipped groups.
+
+    ``grouping``: see :func:`plan_groups`.
 
     With several groups, one that cannot be calibrated (no triplet, no valid
     estimate, ...) is skipped with the reason while the others calibrate; when none
@@ -200,7 +275,7 @@ def calibrate_groups(
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise CalibrationError(f"unknown method {unknown[0]!r} (choose from {METHODS})")
-    groups, skipped = plan_groups(contents, options)
+    groups, skipped = plan_groups(contents, options, grouping)
     results: dict[str, list[GroupCalibration]] = {m: [] for m in methods}
     first_error: CalibrationError | None = None
     for group in groups:

@@ -7,15 +7,18 @@ convention, the centre of the top-left pixel at (0.5, 0.5)).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
+import pycolmap
 
+from ..common.errors import CalibrationError
 from ..database.cameras import CameraInfo
 from ..geometry.tensor_estimation import TripletTensor
 from .parametrization import PARAMETER_NAMES
 
-__all__ = ["PARAMETER_NAMES", "CameraCalibration", "TripletReport"]
+__all__ = ["PARAMETER_NAMES", "CameraCalibration", "TripletReport", "apply_cameras"]
 
 #: What :func:`.diagnosis.diagnose` says when the tracks show no known cause.
 NO_CAUSE = "no degenerate motion found"
@@ -113,6 +116,9 @@ class CameraCalibration:
     tensors: list[TripletTensor] = field(default_factory=list, repr=False)
     #: The camera as stored in the database (model, size, distortion), for writing.
     stored_camera: CameraInfo | None = field(default=None, repr=False)
+    #: (fx, fy, cx, cy) the calibrated reconstruction itself holds (its bundle-adjusted
+    #: intrinsics; the mean over the group's camera ids), pixels; None for a database.
+    reference: tuple[float, float, float, float] | None = None
 
     @property
     def intrinsics(self) -> np.ndarray:
@@ -146,7 +152,73 @@ class CameraCalibration:
         data.pop("stored_camera")
         data["prior"] = dict(zip(PARAMETER_NAMES, self.prior, strict=True))
         data["start"] = dict(zip(PARAMETER_NAMES, self.start, strict=True))
+        if self.reference is not None:
+            data["reference"] = dict(zip(PARAMETER_NAMES, self.reference, strict=True))
         return data
+
+    def updated_cameras(self) -> dict[int, CameraInfo]:
+        """camera_id -> the stored camera with the estimate (:meth:`written_camera`).
+
+        The one place where (fx, fy, cx, cy) become a camera model's params is
+        :meth:`.CameraInfo.with_intrinsics` (single-focal models: f = (fx + fy) / 2).
+        """
+        if self.stored_camera is None:
+            raise CalibrationError(f"camera {self.camera_id}: the result has no stored camera")
+        return {self.camera_id: self.written_camera(self.stored_camera)}
+
+    @property
+    def camera(self) -> pycolmap.Camera:
+        """The estimate as a new ``pycolmap.Camera``.
+
+        Model, image size and id are the stored camera's (the database's, or the
+        reconstruction's it was calibrated from); focal length and principal point are
+        the estimate (pixels); distortion params the stored ones, or the estimated ones
+        where the stored camera held none and the tracks showed some
+        (:attr:`distortion`).
+        """
+        cameras = self.updated_cameras()
+        return cameras.get(self.camera_id, next(iter(cameras.values()))).to_pycolmap()
+
+    def apply(self, reconstruction: pycolmap.Reconstruction) -> list[int]:
+        """Write the estimate into the reconstruction's cameras of this result, in memory.
+
+        Every camera id of the result (of the group) gets the estimate; each keeps its
+        own distortion params unless they are 0 and the tracks showed distortion
+        (:meth:`written_camera`). Poses and points are not touched: bundle-adjust or
+        re-triangulate afterwards.
+
+        Returns:
+            The camera ids written (sorted).
+
+        Raises:
+            CalibrationError: the reconstruction lacks one of the camera ids, or holds it
+                with another model or image size (nothing is written then).
+        """
+        return apply_cameras(reconstruction, self.updated_cameras())
+
+    def compare_with_model(self) -> str:
+        """A table of the estimate (± std) beside the reconstruction's own intrinsics.
+
+        Rows fx, fy, cx, cy in pixels and their difference in % of the model's value.
+
+        Raises:
+            CalibrationError: the result is not of a reconstruction (no ``reference``).
+        """
+        if self.reference is None:
+            raise CalibrationError(
+                f"camera {self.camera_id}: not calibrated from a reconstruction (no reference)"
+            )
+        lines = [f"{'':>4} {'estimate':>10} {'± std':>8} {'model':>10} {'diff %':>8}"]
+        for name, value, model in zip(
+            PARAMETER_NAMES, self.intrinsics, self.reference, strict=True
+        ):
+            std = self.std.get(name)
+            shown = "-" if std is None else f"{std:.2f}"
+            lines.append(
+                f"{name:>4} {value:>10.2f} {shown:>8} {model:>10.2f} "
+                f"{100.0 * (value / model - 1.0):>+8.3f}"
+            )
+        return "\n".join(lines)
 
     def warning(self) -> str | None:
         """One line naming the parameters that are not observable and what was done, or None.
@@ -186,6 +258,59 @@ class CameraCalibration:
             if not fixed and self.diagnosis and self.diagnosis != NO_CAUSE:
                 parts[-1] += f" ({self.diagnosis})"
         return f"camera {self.camera_id}: " + "; ".join(parts)
+
+
+def apply_cameras(
+    reconstruction: pycolmap.Reconstruction,
+    cameras: Mapping[int, CameraInfo],
+    require_all: bool = True,
+) -> list[int]:
+    """Write each camera's params into the reconstruction's camera of the same id.
+
+    Every camera is checked before any is written, so a refusal leaves the
+    reconstruction unchanged.
+
+    Args:
+        reconstruction: changed in memory.
+        cameras: camera_id -> camera with the params to write (model and size must be
+            those of the reconstruction's camera).
+        require_all: refuse a camera id the reconstruction lacks (else it is skipped,
+            but at least one must be there).
+
+    Returns:
+        The camera ids written (sorted).
+
+    Raises:
+        CalibrationError: a missing camera id (with ``require_all``), none present, or a
+            camera of another model or image size.
+    """
+    present = sorted(c for c in cameras if reconstruction.exists_camera(c))
+    missing = sorted(set(cameras) - set(present))
+    if missing and require_all:
+        raise CalibrationError(
+            f"the reconstruction has no camera {missing[0]} (it has camera ids "
+            f"{sorted(reconstruction.cameras)[:10]}): is it from this database?"
+        )
+    if not present:
+        raise CalibrationError(
+            "no camera of the reconstruction has a calibrated camera's id "
+            "(is it from this database?)"
+        )
+    for camera_id in present:
+        target, camera = reconstruction.camera(camera_id), cameras[camera_id]
+        if (target.model.name, target.width, target.height) != (
+            camera.model,
+            camera.width,
+            camera.height,
+        ):
+            raise CalibrationError(
+                f"camera {camera_id} of the reconstruction is a {target.model.name} "
+                f"{target.width}x{target.height}, the calibrated one a {camera.model} "
+                f"{camera.width}x{camera.height}: is it from this database?"
+            )
+    for camera_id in present:
+        reconstruction.camera(camera_id).params = cameras[camera_id].params.tolist()
+    return present
 
 
 def _motion_hint(undetermined: list[str]) -> str:

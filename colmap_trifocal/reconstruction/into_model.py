@@ -14,12 +14,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
 from ..common.log import logger
 from ..database.cameras import CameraInfo
+from ..intrinsics.results import apply_cameras
 from .mapping import REFINE_CHOICES, refine_intrinsics
 
 
@@ -95,32 +95,13 @@ def set_intrinsics(
 ) -> list[int]:
     """Write each camera's params into the reconstruction's camera of the same id.
 
+    Camera ids the model lacks are skipped (:func:`..intrinsics.results.apply_cameras`).
+
     Returns:
         The ids written. Raises CalibrationError when no camera id matches, or when a
         matching camera differs in model or image size (a model of another database).
     """
-    written = []
-    for camera_id, camera in sorted(cameras.items()):
-        if camera_id not in reconstruction.cameras:
-            continue
-        target = reconstruction.cameras[camera_id]
-        if (target.model.name, target.width, target.height) != (
-            camera.model,
-            camera.width,
-            camera.height,
-        ):
-            raise CalibrationError(
-                f"camera {camera_id} of the model is a {target.model.name} "
-                f"{target.width}x{target.height}, the database's a {camera.model} "
-                f"{camera.width}x{camera.height}: is the model from this database?"
-            )
-        target.params = np.asarray(camera.params, float).tolist()
-        written.append(camera_id)
-    if not written:
-        raise CalibrationError(
-            "no camera of the model has a calibrated camera's id (is the model from this database?)"
-        )
-    return written
+    return apply_cameras(reconstruction, cameras, require_all=False)
 
 
 def calibrate_model(

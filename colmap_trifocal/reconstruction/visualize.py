@@ -12,6 +12,12 @@ Conventions:
   corner rectangle;
 * colours are RGB in [0, 1].
 
+The view frames the bulk of the points (per-axis percentiles :data:`FRAME_PERCENTILES`)
+and every camera, so that a few far points (triangulated from nearly parallel rays) do
+not shrink the model into a corner; frustums are drawn at a fraction of that framed
+size. :func:`render_png` writes the caption (the calibrated K ± std and the registered
+images, :func:`model_caption`) in a white band above the view with OpenCV.
+
 open3d is imported lazily, so this module (and :func:`load_model`) imports even where
 open3d cannot (without ``libusb-1.0-0`` its import fails). Offscreen rendering uses
 Filament; on a CPU-only Linux machine it runs on Mesa's llvmpipe Vulkan driver, and
@@ -25,6 +31,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import functools
+import json
 import os
 import subprocess
 import sys
@@ -32,11 +39,13 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
-from .model_files import check_binary_model
+from ..database.cameras import CameraInfo
+from ..database.from_reconstruction import grouping_cameras, read_reconstruction
 
 if TYPE_CHECKING:
     import open3d
@@ -44,8 +53,17 @@ if TYPE_CHECKING:
 #: Debian packages open3d needs to import (libusb) and to render offscreen.
 DEBIAN_PACKAGES = "libegl1 libgl1-mesa-dri libvulkan1 mesa-vulkan-drivers libusb-1.0-0"
 
-#: Default frustum depth as a fraction of the scene extent (see :func:`scene_extent`).
-FRUSTUM_FRACTION = 0.05
+#: Default frustum depth as a fraction of the framed scene's size (see :func:`scene_size`).
+FRUSTUM_FRACTION = 0.03
+
+#: Per-axis percentiles (%) of the points that the view frames and that set the scene size.
+FRAME_PERCENTILES = (2.0, 98.0)
+
+#: Rendered point diameter in pixels per pixel of image height (at least 3 px).
+POINT_SIZE_PER_HEIGHT = 1.0 / 240.0
+
+#: Caption text height in pixels per pixel of image width (OpenCV Hershey simplex).
+CAPTION_SCALE_PER_WIDTH = 0.6 / 1280.0
 
 #: Vertical field of view of the rendering camera, degrees.
 VERTICAL_FOV_DEG = 50.0
@@ -57,8 +75,6 @@ KEEP_QUANTILE = 0.99
 _COLORMAP = np.array(
     [[0.0, 0.0, 1.0], [0.0, 0.8, 1.0], [0.0, 0.8, 0.0], [1.0, 0.8, 0.0], [1.0, 0.0, 0.0]]
 )
-
-_MODEL_FILES = ("cameras", "images", "points3D")
 
 _PROBE = (
     "import open3d as o3d\n"
@@ -84,24 +100,9 @@ def load_model(path: Path) -> pycolmap.Reconstruction:
 
     Raises:
         CalibrationError: the folder is missing, lacks cameras/images/points3D files,
-            or they cannot be parsed.
+            or they cannot be parsed (:func:`..database.from_reconstruction.read_reconstruction`).
     """
-    path = Path(path)
-    if not path.is_dir():
-        raise CalibrationError(f"model folder not found: {path}")
-    missing = [
-        name
-        for name in _MODEL_FILES
-        if not any((path / f"{name}{ext}").is_file() for ext in (".bin", ".txt"))
-    ]
-    if missing:
-        raise CalibrationError(f"not a COLMAP model (no {', '.join(missing)} .bin/.txt) in {path}")
-    check_binary_model(path)  # before pycolmap, which trusts the counts in the files
-    try:
-        return pycolmap.Reconstruction(str(path))
-    except (ValueError, RuntimeError, MemoryError, OSError, IndexError) as exc:
-        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise CalibrationError(f"cannot read the COLMAP model in {path}: {reason}") from exc
+    return read_reconstruction(Path(path))
 
 
 def registration_colors(count: int) -> np.ndarray:
@@ -129,21 +130,41 @@ def inlier_mask(xyz: np.ndarray, keep_quantile: float = KEEP_QUANTILE) -> np.nda
     return distance <= np.quantile(distance, keep_quantile)
 
 
-def scene_extent(xyz: np.ndarray, centres: np.ndarray | None = None) -> float:
-    """Robust scene size (world units): median distance of the points to their centroid.
+def robust_bounds(
+    xyz: np.ndarray, percentiles: tuple[float, float] = FRAME_PERCENTILES
+) -> tuple[np.ndarray, np.ndarray]:
+    """(3,) lower and (3,) upper per-axis percentiles of the points (world units).
 
-    The centroid is the per-axis median, so a few far points move neither the centre
-    nor the extent. With camera ``centres`` (m, 3) the extent is at least their median
-    distance to that centroid, so frustums stay visible when the cameras are far from
-    a compact scene. 0 without points and cameras.
+    Raises ValueError without points.
     """
     xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
+    if len(xyz) == 0:
+        raise ValueError("no points")
+    low, high = np.percentile(xyz, percentiles, axis=0)
+    return low, high
+
+
+def framed(xyz: np.ndarray, percentiles: tuple[float, float] = FRAME_PERCENTILES) -> np.ndarray:
+    """(n,) bool: the points inside their per-axis percentile box (the bulk of the scene)."""
+    xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
+    if len(xyz) == 0:
+        return np.zeros(0, dtype=bool)
+    low, high = robust_bounds(xyz, percentiles)
+    return np.all((xyz >= low) & (xyz <= high), axis=1)
+
+
+def scene_size(xyz: np.ndarray, centres: np.ndarray | None = None) -> float:
+    """Robust scene size (world units): the diagonal of the box that holds the bulk of the
+    points (:func:`robust_bounds`) and every camera centre (m, 3); 0 without either."""
+    xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
     centres = np.zeros((0, 3)) if centres is None else np.asarray(centres, float).reshape(-1, 3)
-    if len(xyz) == 0 and len(centres) == 0:
+    corners = [centres]
+    if len(xyz):
+        corners.extend(robust_bounds(xyz))
+    stacked = np.vstack([c.reshape(-1, 3) for c in corners])
+    if len(stacked) == 0:
         return 0.0
-    centroid = np.median(xyz if len(xyz) else centres, axis=0)
-    extents = [np.median(np.linalg.norm(a - centroid, axis=1)) for a in (xyz, centres) if len(a)]
-    return float(max(extents))
+    return float(np.linalg.norm(stacked.max(axis=0) - stacked.min(axis=0)))
 
 
 def _poses(
@@ -210,8 +231,8 @@ def scene_geometry(
     Args:
         reconstruction: a pycolmap reconstruction.
         frustum_scale: depth of each frustum's image plane along its optical axis
-            (world units); None: :data:`FRUSTUM_FRACTION` of :func:`scene_extent` of
-            the kept points and the camera centres.
+            (world units); None: :data:`FRUSTUM_FRACTION` of :func:`scene_size` of the
+            points and the camera centres.
 
     Returns:
         The sparse points (far outliers beyond the :data:`KEEP_QUANTILE` distance
@@ -228,8 +249,8 @@ def scene_geometry(
     image_ids = sorted(reconstruction.reg_image_ids())
     world_from_cam, centres = _poses(reconstruction, image_ids)
     if frustum_scale is None:
-        extent = scene_extent(xyz[keep], centres)
-        frustum_scale = FRUSTUM_FRACTION * extent if extent > 0 else 1.0
+        size = scene_size(xyz[keep], centres)
+        frustum_scale = FRUSTUM_FRACTION * size if size > 0 else 1.0
     colors = registration_colors(len(image_ids))
     frustums = [
         frustum(
@@ -251,9 +272,13 @@ def _unit(vector: np.ndarray) -> np.ndarray | None:
 
 
 def _vertices(geometry: open3d.geometry.Geometry) -> np.ndarray:
-    """(n, 3) vertices of a point cloud / line set, else its bounding-box corners."""
+    """(n, 3) vertices to frame: a point cloud's bulk (:func:`framed`), a line set's
+    vertices, a mesh's vertices, else the bounding-box corners."""
     o3d = _open3d()
-    if isinstance(geometry, o3d.geometry.PointCloud | o3d.geometry.LineSet):
+    if isinstance(geometry, o3d.geometry.PointCloud):
+        points = np.asarray(geometry.points)
+        return points[framed(points)]
+    if isinstance(geometry, o3d.geometry.LineSet):
         return np.asarray(geometry.points)
     if isinstance(geometry, o3d.geometry.TriangleMesh):
         return np.asarray(geometry.vertices)
@@ -269,7 +294,8 @@ def view_for(
     elevation_deg: float = 25.0,
     margin: float = 1.08,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(centre, eye, up) of a virtual camera seeing every vertex of ``geometries``.
+    """(centre, eye, up) of a virtual camera seeing ``geometries``: every frustum and line
+    vertex, and the bulk of each point cloud (:func:`framed`; far points may fall outside).
 
     The camera looks at the bounding-box centre along the mean optical axis of the
     frustums (5-vertex LineSets, see the module docstring), i.e. from behind the
@@ -277,7 +303,7 @@ def view_for(
     the optical axes cancel out (cameras all around the scene), it looks from the
     mean camera centre towards the scene centre instead; without frustums along +z
     with −y up (a COLMAP camera at the origin). The distance is the smallest one
-    that keeps every vertex inside the field of view, times ``margin``.
+    that keeps those vertices inside the field of view, times ``margin``.
     """
     vertices = [_vertices(g) for g in geometries]
     points = np.vstack([v for v in vertices if len(v)] or [np.zeros((1, 3))])
@@ -380,18 +406,55 @@ def offscreen_problem() -> str | None:
     return None
 
 
-def _material(geometry: open3d.geometry.Geometry):
-    """Unlit material: size-2 points for point clouds, 1.5 px lines for line sets."""
+def _material(geometry: open3d.geometry.Geometry, point_size: float = 3.0):
+    """Unlit material: ``point_size`` px points for point clouds, 2 px lines for line sets."""
     o3d = _open3d()
     material = o3d.visualization.rendering.MaterialRecord()
     material.shader = "defaultUnlit"
-    material.point_size = 2.0
+    material.point_size = float(point_size)
     if isinstance(geometry, o3d.geometry.LineSet):
         material.shader = "unlitLine"
-        material.line_width = 1.5
+        material.line_width = 2.0
     elif isinstance(geometry, o3d.geometry.TriangleMesh):
         material.shader = "defaultLit"
     return material
+
+
+def _caption_layout(lines: Sequence[str], width: int) -> tuple[float, int]:
+    """(font scale, line height in px) for ``lines`` across an image ``width`` px wide.
+
+    The scale is :data:`CAPTION_SCALE_PER_WIDTH` of the width, smaller where the
+    longest line would not fit.
+    """
+    scale = CAPTION_SCALE_PER_WIDTH * width
+    widest = max(
+        (cv2.getTextSize(t, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0] for t in lines), default=0
+    )
+    if widest > 0.96 * width:
+        scale *= 0.96 * width / widest
+    return scale, int(np.ceil(32 * scale / 0.6))
+
+
+def caption_band(lines: Sequence[str], width: int) -> np.ndarray:
+    """A white (h, width, 3) uint8 RGB band with ``lines`` in dark grey, one per row."""
+    if not lines:
+        return np.zeros((0, width, 3), np.uint8)
+    scale, line_height = _caption_layout(lines, width)
+    band = np.full((line_height * len(lines) + line_height // 2, width, 3), 255, np.uint8)
+    thickness = max(1, round(2 * scale))
+    for k, text in enumerate(lines):
+        origin = (int(0.02 * width), line_height * (k + 1))
+        cv2.putText(
+            band,
+            text,
+            origin,
+            cv2.FONT_HERSHEY_SIMPLEX,
+            scale,
+            (40, 40, 40),
+            thickness,
+            cv2.LINE_AA,
+        )
+    return band
 
 
 def render_png(
@@ -399,11 +462,15 @@ def render_png(
     path: Path,
     width: int = 1280,
     height: int = 960,
+    caption: Sequence[str] = (),
 ) -> Path:
     """Render ``geometries`` offscreen (white background) to the PNG ``path``.
 
-    The virtual camera is placed by :func:`view_for`. Takes about 1-2 s on a CPU
-    (plus the one-off :func:`offscreen_problem` check).
+    The virtual camera is placed by :func:`view_for`; points are drawn
+    :data:`POINT_SIZE_PER_HEIGHT` of the height wide (at least 3 px). ``caption`` lines
+    go in a white band at the top (:func:`caption_band`); the view fills the rest of
+    the ``width`` x ``height`` image. Takes about 1-2 s on a CPU (plus the one-off
+    :func:`offscreen_problem` check).
 
     Raises:
         CalibrationError: offscreen rendering is impossible here (the message names
@@ -415,13 +482,17 @@ def render_png(
     o3d = _open3d()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    centre, eye, up = view_for(geometries, width, height)
+    band = caption_band(list(caption), width)
+    view_height = max(height - band.shape[0], height // 2)
+    band = band[: height - view_height]
+    centre, eye, up = view_for(geometries, width, view_height)
+    point_size = max(3.0, POINT_SIZE_PER_HEIGHT * height)
 
     verbosity = o3d.utility.get_verbosity_level()
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)  # GLFW fallback
     try:
         with _native_stdout_to_stderr():
-            renderer = o3d.visualization.rendering.OffscreenRenderer(width, height)
+            renderer = o3d.visualization.rendering.OffscreenRenderer(width, view_height)
     finally:
         o3d.utility.set_verbosity_level(verbosity)
     try:
@@ -429,30 +500,113 @@ def render_png(
         # No tone mapping / colour grading: exact white background and point colours.
         renderer.scene.view.set_post_processing(False)
         for k, geometry in enumerate(geometries):
-            renderer.scene.add_geometry(f"geometry{k}", geometry, _material(geometry))
+            renderer.scene.add_geometry(f"geometry{k}", geometry, _material(geometry, point_size))
         renderer.setup_camera(VERTICAL_FOV_DEG, centre, eye, up)
-        image = renderer.render_to_image()
+        view = np.asarray(renderer.render_to_image())[..., :3]
     finally:
         del renderer
-    if not o3d.io.write_image(str(path), image):
+    image = np.vstack([band, view])
+    try:
+        written = cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    except cv2.error:
+        written = False
+    if not written:
         raise CalibrationError(f"cannot write the image {path}")
     return path
+
+
+def run_report(model: Path) -> dict | None:
+    """The ``report.json`` of the ``run`` whose workspace holds ``model`` (``sparse/0``),
+    or None (none there, unreadable, or not a report)."""
+    path = Path(model).resolve().parent.parent / "report.json"
+    try:
+        report = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return report if isinstance(report, dict) and isinstance(report.get("cameras"), list) else None
+
+
+def _intrinsics_text(values: Sequence[float], std: dict | None = None) -> str:
+    """``fx 2759.4 ± 1.8, fy …, cx …, cy … px`` (no ``±`` where the std is unknown)."""
+    parts = []
+    for name, value in zip(("fx", "fy", "cx", "cy"), values, strict=True):
+        spread = None if std is None else std.get(name)
+        parts.append(f"{name} {value:.1f}" + ("" if spread is None else f" \u00b1 {spread:.1f}"))
+    return ", ".join(parts) + " px"
+
+
+def model_caption(
+    reconstruction: pycolmap.Reconstruction, report: dict | None = None, max_cameras: int = 3
+) -> list[str]:
+    """Caption lines: the registered images and points, then each camera's K.
+
+    With a ``run`` report that matches the model (same number of registered images and
+    its cameras in the model) each camera's line is TrifocalCalib's estimate ± std;
+    otherwise the model's own K per physical camera (ids grouped as
+    :func:`..database.from_reconstruction.grouping_cameras` does, mean K), without std.
+    At most ``max_cameras`` camera lines, then how many more there are.
+    """
+    registered = reconstruction.num_reg_images()
+    lines = [
+        f"{registered} of {reconstruction.num_images()} images registered, "
+        f"{reconstruction.num_points3D()} points"
+    ]
+    cameras: list[str] = []
+    usable = (
+        report is not None
+        and report.get("num_registered_images") == registered
+        and all(
+            isinstance(c, dict) and reconstruction.exists_camera(int(c.get("camera_id", -1)))
+            for c in report["cameras"]
+        )
+    )
+    if usable and report is not None:
+        for camera in report["cameras"]:
+            values = [camera["trifocal"][n] for n in ("fx", "fy", "cx", "cy")]
+            cameras.append(
+                f"camera {camera['camera_id']} ({camera.get('num_registered_images', '?')} "
+                f"images), TrifocalCalib: {_intrinsics_text(values, camera.get('trifocal_std'))}"
+            )
+    else:
+        image_count: dict[int, int] = {}
+        for image_id in reconstruction.reg_image_ids():
+            camera_id = int(reconstruction.image(image_id).camera_id)
+            image_count[camera_id] = image_count.get(camera_id, 0) + 1
+        infos = {c: CameraInfo.from_pycolmap(reconstruction.camera(c)) for c in image_count}
+        groups: dict[bytes, list[int]] = {}
+        for camera_id, info in sorted(grouping_cameras(infos).items()):
+            groups.setdefault(info.params.tobytes(), []).append(camera_id)
+        for ids in groups.values():
+            first = infos[ids[0]]
+            mean = np.mean([infos[c].intrinsics for c in ids], axis=0)
+            who = f"camera {ids[0]}" if len(ids) == 1 else f"cameras {ids[0]}.. ({len(ids)} ids)"
+            cameras.append(
+                f"{who} {first.model} {first.width}x{first.height} "
+                f"({sum(image_count[c] for c in ids)} images), model: {_intrinsics_text(mean)}"
+            )
+    if len(cameras) > max_cameras:
+        cameras = [*cameras[:max_cameras], f"... and {len(cameras) - max_cameras} more cameras"]
+    return lines + cameras
 
 
 def show(model: Path, png: Path | None = None) -> Path | None:
     """Show the model in ``model`` (a COLMAP sparse folder): to ``png`` or in a window.
 
-    With ``png`` the view is rendered offscreen and its path returned. Without it an
-    interactive open3d window opens when a display exists (``DISPLAY`` or
-    ``WAYLAND_DISPLAY`` set) and None is returned after it is closed.
+    With ``png`` the view is rendered offscreen with its caption (:func:`model_caption`,
+    with the ``report.json`` of the ``run`` workspace that holds the model, if any) and
+    its path returned. Without it an interactive open3d window opens when a display
+    exists (``DISPLAY`` or ``WAYLAND_DISPLAY`` set) and None is returned after it is
+    closed.
 
     Raises:
         CalibrationError: bad model folder, no display (and no ``png``), or offscreen
             rendering impossible.
     """
-    geometries = scene_geometry(load_model(Path(model)))
+    reconstruction = load_model(Path(model))
+    geometries = scene_geometry(reconstruction)
     if png is not None:
-        return render_png(geometries, Path(png))
+        caption = model_caption(reconstruction, run_report(Path(model)))
+        return render_png(geometries, Path(png), caption=caption)
     if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         raise CalibrationError("no display: use --png OUT")
     _open3d().visualization.draw_geometries(geometries, window_name=f"colmap-trifocal: {model}")

@@ -49,7 +49,7 @@ from ..intrinsics.calibrate import (
     calibrate_contents,
     updated_cameras,
 )
-from ..intrinsics.results import PARAMETER_NAMES
+from ..intrinsics.results import PARAMETER_NAMES, apply_cameras
 from .mapping import (
     MAPPERS,
     REFINE_CHOICES,
@@ -230,9 +230,7 @@ def run_pipeline(
     refine = refined_while_mapping(calibrations)
     if given_model is not None:
         reconstruction = given_model
-        for camera_id, camera in updated.items():
-            if camera_id in reconstruction.cameras:
-                reconstruction.cameras[camera_id].params = np.asarray(camera.params, float).tolist()
+        apply_cameras(reconstruction, updated, require_all=False)
     else:
         with tempfile.TemporaryDirectory(dir=workspace) as tmp:
             _stage(f"mapping (pycolmap {options.mapper})", on_stage)
