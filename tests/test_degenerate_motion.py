@@ -109,11 +109,15 @@ def test_pure_translation_holds_the_prior(seed: int) -> None:
     truth, prior, result = calibrated("translation", seed)
     assert not any(result.observable.values())
     np.testing.assert_allclose(result.intrinsics, prior, rtol=1e-12)
-    # Held at the prior with the prior's assumed std (30 % of f, 10 % of f for c).
+    # Held at the prior with the prior's assumed std (30 % of f, 10 % of f for c), the
+    # focal length's widened to its disagreement with the (indecisive) focal search.
     focal = np.array([prior[0], prior[1], prior[0], prior[1]])
+    search = result.focal_search
+    assert search is not None and not search["used"]
+    disagreement = abs(search["focal"] / np.sqrt(prior[0] * prior[1]) - 1)
     np.testing.assert_allclose(
         [result.std[name] for name in ("fx", "fy", "cx", "cy")],
-        np.array([0.3, 0.3, 0.1, 0.1]) * focal,
+        np.array([max(0.3, disagreement)] * 2 + [0.1, 0.1]) * focal,
     )
     assert result.assumptions == ["fx, fy held at the prior", "cx, cy held at the prior"]
     assert "pure translation" in (result.warning() or "")

@@ -69,10 +69,11 @@ def assess(
         name: finite_or_none(s) if estimated[name] else None
         for name, s in zip(PARAMETER_NAMES, std, strict=True)
     }
+    held_focal = np.array([candidate.held[0], candidate.held[1]] * 2)
     for index, name in enumerate(PARAMETER_NAMES):
         if source[name] in ("focal-search", "prior"):
             # A held value is known as well as its evidence: the start's std.
-            reported_std[name] = float(candidate.held_std[index] * focal_scale[index])
+            reported_std[name] = float(candidate.held_std[index] * held_focal[index])
     return CameraCalibration(
         camera_id=camera.camera_id,
         model=camera.model,
@@ -97,8 +98,9 @@ def assess(
         estimated=estimated,
         source=source,
         focal_search=search_summary(search),
-        diagnosis=lens_note
-        or (None if all(observable.values()) else diagnose(tracks, estimate)),
+        diagnosis=_joined(
+            lens_note, None if all(observable.values()) else diagnose(tracks, estimate)
+        ),
         triplet_bundle=polished.summary,
         lens_distortion=None if lens is None else lens.summary(),
         distortion=distortion,
@@ -180,9 +182,9 @@ def with_lens(
     Without distortion in the tracks: unchanged. With it, a camera model that has
     distortion parameters takes the adjustment's K and distortion, with the larger of
     the adjustment's std and the estimate's (adding parameters to a fit cannot make
-    the others better known); a pinhole camera (which stays pinhole), or an
-    adjustment that had to move held parameters, keeps its estimate, each std widened
-    by how far the distortion moved that parameter, and a note naming the cause.
+    the others better known); a pinhole camera (which stays pinhole) keeps its
+    estimate, each std widened by how far the distortion moved that parameter, and a
+    note naming the cause.
 
     Returns:
         (fx, fy, cx, cy) in pixels, their std relative to the focal length, the
@@ -194,16 +196,19 @@ def with_lens(
         f"{value:+.4f} ± {std:.4f}"
         for value, std in zip(lens.distortion, lens.distortion_std, strict=True)
     )
-    if camera_model not in PINHOLE_MODELS and not lens.adjusts_held:
+    if camera_model not in PINHOLE_MODELS:
         std = np.maximum(lens.intrinsics_std / focal_scale, relative_std)
         return lens.intrinsics.copy(), std, [float(v) for v in lens.distortion], None
     shift = np.abs(lens.intrinsics - intrinsics) / focal_scale
-    if camera_model in PINHOLE_MODELS:
-        note = (
-            f"radial distortion in the tracks (k {words}) that the {camera_model} camera "
-            "does not model: the focal length is biased by it; store the camera as "
-            "SIMPLE_RADIAL"
-        )
-    else:
-        note = f"radial distortion in the tracks (k {words}) biases the estimate"
+    note = (
+        f"radial distortion in the tracks (k {words}) that the {camera_model} camera "
+        "does not model: the focal length is biased by it; store the camera as "
+        "SIMPLE_RADIAL"
+    )
     return intrinsics, np.hypot(relative_std, shift), None, note
+
+
+def _joined(*notes: str | None) -> str | None:
+    """The notes that are given, joined with "; " (None when there are none)."""
+    given = [note for note in notes if note]
+    return "; ".join(given) if given else None

@@ -33,7 +33,7 @@ from .fundamental import calibrate_fundamental
 from .lens_distortion import estimate_distortion
 from .observability import tolerance
 from .options import CalibrationOptions
-from .parametrization import FULL, SINGLE_FOCAL
+from .parametrization import FULL, HELD, SINGLE_FOCAL, Model
 from .polish import Polished, polish
 from .results import CameraCalibration
 from .selfcalibration import (
@@ -46,6 +46,10 @@ from .selfcalibration import (
 from .start_candidates import StartCandidate, first_start, moved_far, other_starts, restart_point
 from .tensor_set import TensorEstimator, TensorSet
 from .triplet_selection import CameraTracks, select_camera_triplets
+
+#: Tensors that must agree with an estimate for it to stand (fewer when the camera
+#: has fewer triplets): below, every value is held at the start.
+MIN_AGREEING = 3
 
 
 @dataclass
@@ -165,6 +169,18 @@ def _calibrate_method(
         if other.agreeing > best.agreeing:
             best = other
     with clock("solve"):
+        if _nothing_agrees(best, method):
+            logger.info(
+                "camera %d: %d of %d tensors agree with the estimate: every value held",
+                camera.camera_id,
+                best.agreeing,
+                len(best.tensors.tensors),
+            )
+            best = Attempt(
+                best.candidate,
+                best.tensors,
+                _solve(best.candidate, best.tensors, data, method, options, HELD),
+            )
         start, fallback = best.tensors.start, best.fallback
         estimate = _checked_estimate(best, camera.camera_id, method)
     with clock("polish"):
@@ -269,9 +285,11 @@ def _solve(
     data: CameraInput,
     method: str,
     options: CalibrationOptions,
+    base: Model | None = None,
 ) -> FallbackSolution:
-    """The 15 constraints of ``tensors`` solved with ``method``; undetermined parameters
-    tied (fy = fx) or held at the candidate's values (:func:`.solve_with_fallback`)."""
+    """The 15 constraints of ``tensors`` solved with ``method`` for the parameters of
+    ``base`` (default: the camera model's); undetermined parameters tied (fy = fx) or
+    held at the candidate's values (:func:`.solve_with_fallback`)."""
     camera = data.camera
     problem = CalibrationProblem(
         tensors.tensors,
@@ -282,15 +300,28 @@ def _solve(
         options.tau,
         candidate.held_std,
     )
-    return solve_with_fallback(problem, SINGLE_FOCAL if camera.single_focal else FULL)
+    if base is None:
+        base = SINGLE_FOCAL if camera.single_focal else FULL
+    return solve_with_fallback(problem, base)
+
+
+def _nothing_agrees(attempt: Attempt, method: str) -> bool:
+    """Whether fewer than ``MIN_AGREEING`` tensors agree with the estimate of a robust
+    method that estimated something: the tracks single out no K (strong unmodelled
+    lens distortion, wrong matches, no parallax), and the start is the best evidence
+    the run has. One or two tensors among many that agree with a K are as likely to
+    agree by chance as because it is the camera's."""
+    total = len(attempt.fallback.solution.inlier_tensors)
+    return (
+        method != "direct"
+        and attempt.fallback.model.dimension > 0
+        and attempt.agreeing < min(MIN_AGREEING, total)
+    )
 
 
 def _checked_estimate(best: Attempt, camera_id: int, method: str) -> np.ndarray:
-    """The estimate (fx, fy, cx, cy) in pixels, or CalibrationError when it is garbage.
-
-    An estimate no tensor agrees with is garbage (e.g. copies of one image with
-    jitter); ``direct`` (no outlier defence) and a result held at the prior are exempt.
-    """
+    """The estimate (fx, fy, cx, cy) in pixels, or CalibrationError when it is garbage
+    (not finite, a focal length ≤ 0 that tensors agree with)."""
     fallback = best.fallback
     estimate = fold_focal_sign(theta_to_intrinsics(fallback.solution.theta, best.tensors.start))
     checked = method != "direct" and fallback.model.dimension > 0

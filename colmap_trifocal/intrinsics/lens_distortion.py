@@ -80,8 +80,6 @@ class LensDistortion:
             the distortion (χ² with k degrees of freedom where the lens has none).
         threshold: the statistic above which the distortion counts as present.
         agreeing: triplets adjusted together.
-        adjusts_held: the adjustment also moved parameters the solve held (a model
-            pycolmap cannot express): a test for distortion, not an estimate.
     """
 
     camera_model: str
@@ -92,7 +90,6 @@ class LensDistortion:
     statistic: float
     threshold: float
     agreeing: int
-    adjusts_held: bool = False
 
     @property
     def present(self) -> bool:
@@ -141,16 +138,17 @@ def estimate_distortion(
         camera: the stored camera (model, size, distortion).
         tau: the MSAC threshold; triplets with ``λ < τ²`` agree.
 
-    Returns None when the distortion is taken as stored, fewer than ``MIN_TRIPLETS``
-    triplets agree, or Ceres fails.
+    Returns None when the distortion is taken as stored, the solve's model is not
+    expressible in pycolmap (one principal-point coordinate held) or estimates
+    nothing, fewer than ``MIN_TRIPLETS`` triplets agree, or Ceres fails.
     """
     camera_model = distortion_model(camera)
     if camera_model is None or not tensors:
         return None
     setup = pycolmap_camera_setup(model)
-    # Where pycolmap cannot hold what the solve held, every parameter is adjusted: the
-    # result then only tests for distortion (``adjusts_held``).
-    _, refine_focal, refine_principal_point = setup or ("", True, True)
+    if setup is None:
+        return None
+    _, refine_focal, refine_principal_point = setup
     intrinsics = np.asarray(estimate, float).copy()
     size = (camera.width, camera.height)
     observed = observed_tracks(tensors, tracks, start)
@@ -208,7 +206,6 @@ def estimate_distortion(
             )
         ),
         agreeing=len(agreeing),
-        adjusts_held=setup is None,
     )
 
 

@@ -49,7 +49,8 @@ def held_values(
 
     The focal search's focal length when the tracks favour it over the prior
     (:attr:`.FocalSearchResult.improves_on_start`; the prior's aspect ratio kept),
-    else the prior's. The principal point is always the prior's.
+    else the prior's, known no better than its disagreement with the search's focal
+    length. The principal point is always the prior's.
 
     Returns:
         (fx, fy, cx, cy) in pixels, their std relative to the focal length (θ
@@ -58,7 +59,13 @@ def held_values(
     """
     held = np.asarray(prior, float).copy()
     std = default_held_std()
-    if search is None or not search.improves_on_start:
+    if search is None:
+        return held, std, "prior"
+    if not search.improves_on_start:
+        # The search's focal length is not taken, but where it lies far from the
+        # prior's, the prior is known no better than that disagreement.
+        disagreement = abs(search.focal / np.sqrt(held[0] * held[1]) - 1.0)
+        std[:2] = np.maximum(std[:2], disagreement)
         return held, std, "prior"
     held[:2] = with_focal(held, search.focal)[:2]
     std[:2] = search.relative_std
