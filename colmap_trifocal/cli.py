@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from . import __version__
-from .common.arguments import seed
+from .common.arguments import integer_in, seed
 from .common.errors import TERMINATING_SIGNALS, CalibrationError
 from .common.files import file_identity, refuse_overwriting_input, write_text_atomically
 
@@ -154,7 +154,7 @@ def _add_run_parser(commands: argparse._SubParsersAction) -> None:
     """``run IMAGES WORKSPACE``: features, calibration, mapping, bundle adjustment."""
     from .database.camera_groups import GROUPINGS
     from .database.cameras import SUPPORTED_MODELS
-    from .database.features import MATCHERS
+    from .database.features import MATCHERS, MAX_IMAGE_SIZE_RANGE
     from .intrinsics.calibrate import METHODS
     from .reconstruction.mapping import MAPPERS, REFINE_CHOICES
     from .reconstruction.workflow import RunOptions
@@ -168,7 +168,12 @@ def _add_run_parser(commands: argparse._SubParsersAction) -> None:
     run.add_argument(
         "workspace", type=Path, help="output folder: database.db, sparse/0, report.json"
     )
-    run.add_argument("--max-image-size", type=int, default=RunOptions.max_image_size)
+    run.add_argument(
+        "--max-image-size",
+        type=integer_in(*MAX_IMAGE_SIZE_RANGE),
+        default=RunOptions.max_image_size,
+        help="longest image side for SIFT, in pixels",
+    )
     run.add_argument("--matcher", choices=MATCHERS, default=RunOptions.matcher)
     run.add_argument(
         "--camera-model",
@@ -391,8 +396,6 @@ def _database_files(database: Path) -> list[Path]:
 def _run_pipeline(args: argparse.Namespace) -> int:
     from .reconstruction.workflow import RunOptions, format_report, run_pipeline
 
-    if args.max_image_size < 100:
-        raise CalibrationError("--max-image-size must be at least 100 pixels")
     if args.png is not None:
         _check_output(args.png, "--png")
         if args.database is not None:

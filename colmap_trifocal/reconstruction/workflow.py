@@ -39,7 +39,7 @@ from ..common.errors import CalibrationError
 from ..common.files import refuse_overwriting_input, write_text_atomically
 from ..common.log import logger
 from ..database.cameras import PINHOLE_MODELS, CameraInfo
-from ..database.features import build_database
+from ..database.features import build_database, check_max_image_size
 from ..database.shared_cameras import merge_group_cameras
 from ..database.snapshot import copy_database, read_database, write_intrinsics
 from ..intrinsics.calibrate import (
@@ -89,6 +89,9 @@ class RunOptions:
     model: Path | None = None
     overwrite: bool = False
     progress: bool = False
+
+    def __post_init__(self) -> None:
+        check_max_image_size(self.max_image_size)
 
 
 def list_images(image_dir: Path) -> list[str]:
