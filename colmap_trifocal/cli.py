@@ -425,6 +425,8 @@ def _run_pipeline(args: argparse.Namespace) -> int:
     for camera in report["cameras"]:
         if camera["warning"] is not None:
             print(f"warning: {camera['warning']}", file=sys.stderr)
+    for skipped in report["skipped_images"]:  # as COLMAP skips what it cannot read
+        print(one_line(f"warning: skipped {skipped['name']}: {skipped['reason']}"), file=sys.stderr)
     if args.png is not None:
         from .reconstruction.visualize import show
 
