@@ -779,7 +779,7 @@ CASES: dict[str, Case] = {
     # skips them; fewer than 3 usable images is the error, naming the skipped files)
     "run: non-UTF-8 image name": Case(
         _images(_write(os.fsdecode(b"caf\xe9.png"), _encoded(".png", texture_views(1)[0])), good=3),
-        "image file name is not valid UTF-8: /data/images/caf\\xe9.png (COLMAP stores",
+        "/data/images/caf\\xe9.png (COLMAP stores image names as UTF-8",
         argv=_run_images(),
     ),
     "run: 1x1 image": Case(
