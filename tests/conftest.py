@@ -436,3 +436,33 @@ def intrinsics_of(params: list[float], model: str) -> np.ndarray:
     if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
         return np.array([params[0], params[0], params[1], params[2]])
     return np.array(params[:4])
+
+
+# --------------------------------------------------------------------------- images, privileges
+
+
+def texture_views(count: int, seed: int = 0) -> list[np.ndarray]:
+    """``count`` views of one random texture, shifted by 8 px each (240 x 180, 8 bits).
+
+    Pure translation: SIFT matches them and ``run`` maps them, while the calibration
+    determines nothing (the prior is kept).
+    """
+    rng = np.random.default_rng(seed)
+    texture = cv2.resize(rng.integers(0, 256, (60, 80), np.uint8), (320, 240), cv2.INTER_CUBIC)
+    return [texture[20:200, 8 * k : 8 * k + 240] for k in range(count)]
+
+
+def without_root_file_access() -> None:
+    """In a child process (``preexec_fn``): file permissions bind even as root.
+
+    Root's capabilities that bypass them (CAP_DAC_OVERRIDE, CAP_DAC_READ_SEARCH) are
+    dropped from the bounding set, so the program executed next does not get them.
+    """
+    if os.geteuid() != 0:
+        return
+    import ctypes
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    for capability in (1, 2):  # CAP_DAC_OVERRIDE, CAP_DAC_READ_SEARCH
+        if libc.prctl(24, capability, 0, 0, 0) != 0:  # PR_CAPBSET_DROP
+            raise OSError(ctypes.get_errno(), "prctl(PR_CAPBSET_DROP)")

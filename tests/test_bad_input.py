@@ -44,7 +44,14 @@ import cv2
 import numpy as np
 import pycolmap
 import pytest
-from conftest import CliResult, assert_one_error_line, run_cli, synthesize
+from conftest import (
+    CliResult,
+    assert_one_error_line,
+    run_cli,
+    synthesize,
+    texture_views,
+    without_root_file_access,
+)
 
 from colmap_trifocal.database import snapshot as database_module
 
@@ -183,6 +190,8 @@ class Case:
     #: The command line after the program's name, from (folder, made path, workspace);
     #: default ``calibrate PATH *args``. A workspace given to ``run`` must stay absent.
     argv: Callable[[Path, Path, Path], tuple] | None = field(default=None, repr=False)
+    #: A file below the row's folder made unreadable (chmod 000) while the command runs.
+    unreadable: str | None = None
 
 
 def _copy(folder: Path, good: Path) -> Path:
@@ -486,6 +495,28 @@ def _with_companion(suffix: str) -> Callable[[Path, Path], Path]:
         path.with_name(path.name + suffix).write_bytes(b"\0" * 32768)
         return path
 
+
+# ----- issue 22: the image folder and the workspace of ``run``
+
+
+def _encoded(suffix: str, image: np.ndarray, *params: int) -> bytes:
+    ok, data = cv2.imencode(suffix, image, list(params))
+    assert ok
+    return data.tobytes()
+
+
+def _image_folder(add: Callable[[Path], object], good: int = 2) -> Callable[[Path, Path], Path]:
+    """An image folder ``folder/images``: ``good`` JPEGs, then ``add(images)`` puts the bad
+    file(s) in."""
+
+    def make(folder: Path, _good: Path) -> Path:
+        images = folder / "images"
+        images.mkdir()
+        for index, image in enumerate(texture_views(good)):
+            (images / f"{index:02d}.jpg").write_bytes(_encoded(".jpg", image))
+        add(images)
+        return images
+
     return make
 
 
@@ -517,6 +548,41 @@ def _file(folder: Path, _good: Path) -> Path:
     path = folder / "notes.txt"
     path.write_text("mine\n")
     return path
+
+
+def _write(name: str, data: bytes) -> Callable[[Path], object]:
+    return lambda images: (images / name).write_bytes(data)
+
+
+def _cut(name: str, data: bytes, keep: float = 0.5) -> Callable[[Path], object]:
+    """``name`` holding the first ``keep`` share of ``data`` (a truncated download)."""
+    return _write(name, data[: int(len(data) * keep)])
+
+
+def _socket(images: Path) -> None:
+    import socket
+
+    with socket.socket(socket.AF_UNIX) as sock:
+        sock.bind(str(images / "x.png"))  # the socket file stays after the close
+
+
+def _run_image_folder(*args: object) -> Callable[[Path, Path, Path], tuple]:
+    """``run IMAGES WORKSPACE ARGS`` on the made image folder."""
+    return lambda folder, path, workspace: ("run", path, workspace, *args)
+
+
+def _unwritable_workspace(folder: Path, good: Path) -> Path:
+    """Three good images and an existing, empty workspace ``folder/ws`` without write
+    permission (chmod 555)."""
+    images = _image_folder(lambda _: None, good=3)(folder, good)
+    (folder / "ws").mkdir(mode=0o555)
+    (folder / "ws").chmod(0o555)
+    return images
+
+
+_JPEG = _encoded(".jpg", texture_views(1)[0])
+_PROGRESSIVE_JPEG = _encoded(".jpg", texture_views(1)[0], cv2.IMWRITE_JPEG_PROGRESSIVE, 1)
+_PNG16 = _encoded(".png", texture_views(1)[0].astype(np.uint16) * 257)
 
 
 CASES: dict[str, Case] = {
@@ -902,6 +968,143 @@ CASES: dict[str, Case] = {
     "run: an image is a dangling symlink (OpenCV's warning)": Case(
         _dangling_image, "cannot read image", argv=lambda f, p, w: ("run", p, w)
     ),
+    # ----- issue 22: the image folder of ``run`` (unusable files are skipped, as COLMAP
+    # skips them; fewer than 3 usable images is the error, naming the skipped files)
+    "run: non-UTF-8 image name": Case(
+        _image_folder(
+            _write(os.fsdecode(b"caf\xe9.png"), _encoded(".png", texture_views(1)[0])), good=3
+        ),
+        "/data/images/caf\\xe9.png (COLMAP stores image names as UTF-8",
+        argv=_run_image_folder(),
+    ),
+    "run: 1x1 image": Case(
+        _image_folder(_write("x.png", _encoded(".png", np.zeros((1, 1), np.uint8)))),
+        "x.png: 1 x 1 px: sides under 8 px",
+        argv=_run_image_folder(),
+    ),
+    "run: 20000x1 image": Case(
+        _image_folder(_write("x.png", _encoded(".png", np.zeros((1, 20000), np.uint8)))),
+        "x.png: 20000 x 1 px",
+        argv=_run_image_folder(),
+    ),
+    "run: 3000x30 image with --max-image-size 100": Case(
+        _image_folder(_write("x.tif", _encoded(".tif", np.zeros((30, 3000), np.uint8)))),
+        "3000 x 30 px, 100 x 1 px once downscaled",
+        argv=_run_image_folder("--max-image-size", "100"),
+    ),
+    "run: FIFO named x.png": Case(
+        _image_folder(lambda images: os.mkfifo(images / "x.png")),
+        "x.png: not a regular file (a FIFO)",
+        argv=_run_image_folder(),
+    ),
+    "run: socket named x.png": Case(
+        _image_folder(_socket), "x.png: not a regular file (a socket)", argv=_run_image_folder()
+    ),
+    "run: symlink to a device": Case(
+        _image_folder(lambda images: os.symlink("/dev/null", images / "x.jpg")),
+        "x.jpg: not a regular file (a character device)",
+        argv=_run_image_folder(),
+    ),
+    "run: folder named x.jpg": Case(
+        _image_folder(lambda images: (images / "x.jpg").mkdir()),
+        "x.jpg: not a regular file (a folder)",
+        argv=_run_image_folder(),
+    ),
+    "run: symlink loop": Case(
+        _image_folder(lambda images: os.symlink("x.jpg", images / "x.jpg")),
+        "x.jpg: a symlink loop",
+        argv=_run_image_folder(),
+    ),
+    "run: dangling symlink": Case(
+        _image_folder(lambda images: os.symlink("gone.jpg", images / "x.jpg")),
+        "x.jpg: a dangling symlink",
+        argv=_run_image_folder(),
+    ),
+    "run: truncated JPEG": Case(
+        _image_folder(_cut("x.jpg", _JPEG)), "x.jpg: truncated JPEG", argv=_run_image_folder()
+    ),
+    "run: truncated progressive JPEG": Case(
+        _image_folder(_cut("x.jpg", _PROGRESSIVE_JPEG, 0.9)),
+        "x.jpg: truncated JPEG",
+        argv=_run_image_folder(),
+    ),
+    "run: JPEG without its last byte": Case(
+        _image_folder(_write("x.jpg", _JPEG[:-1])),
+        "x.jpg: truncated JPEG",
+        argv=_run_image_folder(),
+    ),
+    "run: truncated 16-bit PNG": Case(
+        _image_folder(_cut("x.png", _PNG16, 0.8)), "x.png: truncated PNG", argv=_run_image_folder()
+    ),
+    "run: truncated BMP": Case(
+        _image_folder(_cut("x.bmp", _encoded(".bmp", texture_views(1)[0]), 0.9)),
+        "x.bmp: truncated BMP",
+        argv=_run_image_folder(),
+    ),
+    "run: truncated float TIFF": Case(
+        _image_folder(
+            _cut("x.tif", _encoded(".tif", texture_views(1)[0].astype(np.float32) / 255))
+        ),
+        "x.tif: not an image COLMAP can decode",
+        argv=_run_image_folder(),
+    ),
+    "run: empty image file": Case(
+        _image_folder(_write("x.png", b"")), "x.png: empty file", argv=_run_image_folder()
+    ),
+    "run: text named x.jpg": Case(
+        _image_folder(_write("x.jpg", b"not a jpeg\n")),
+        "x.jpg: not an image COLMAP can decode",
+        argv=_run_image_folder(),
+    ),
+    "run: no usable image": Case(
+        _image_folder(
+            lambda images: [
+                os.mkfifo(images / "a.png"),
+                (images / "b.jpg").write_bytes(_JPEG[:-2]),
+                (images / "c.png").write_bytes(b""),
+                (images / "d.tif").write_bytes(b"II*\x00"),
+                os.symlink("d.tif", images / "e.jpg"),
+            ],
+            good=0,
+        ),
+        "has 0 usable image(s); at least 3 are needed (5 skipped: a.png: not a regular file "
+        "(a FIFO); b.jpg: truncated JPEG (no end-of-image marker); c.png: empty file; and 2 more)",
+        argv=_run_image_folder(),
+    ),
+    "run: unreadable image (chmod 000)": Case(
+        _image_folder(lambda _: None, good=3),
+        "02.jpg: cannot be read (Permission denied)",
+        argv=_run_image_folder(),
+        preexec_fn=without_root_file_access,
+        unreadable="images/02.jpg",
+    ),
+    # ----- issue 22: the workspace and the numbers of ``run``, checked before any folder
+    "run: workspace without write permission": Case(
+        _unwritable_workspace,
+        "cannot write to workspace",
+        argv=lambda f, p, w: ("run", p, f / "ws"),
+        preexec_fn=without_root_file_access,
+    ),
+    "run --max-image-size 2147483648": Case(
+        _image_folder(lambda _: None, good=3),
+        "--max-image-size: must be in [100, 2147483647], got 2147483648",
+        argv=_run_image_folder("--max-image-size", "2147483648"),
+    ),
+    "run --max-image-size 99": Case(
+        _image_folder(lambda _: None, good=3),
+        "--max-image-size: must be in [100,",
+        argv=_run_image_folder("--max-image-size", "99"),
+    ),
+    "run --max-image-size -1": Case(
+        _image_folder(lambda _: None, good=3),
+        "--max-image-size: must be in",
+        argv=_run_image_folder("--max-image-size=-1"),
+    ),
+    "run --max-image-size 1600.5": Case(
+        _image_folder(lambda _: None, good=3),
+        "--max-image-size: expected an integer, got '1600.5'",
+        argv=_run_image_folder("--max-image-size", "1600.5"),
+    ),
 }
 
 
@@ -924,6 +1127,8 @@ def test_bad_input(
             str(a).format(path=path, folder=folder) if "{" in str(a) else a
             for a in case.argv(folder, path, workspace)
         )
+    if case.unreadable is not None:
+        (folder / case.unreadable).chmod(0)
     if case.preexec_fn is not None:
         result = run_cli(*args, preexec_fn=case.preexec_fn)
     elif case.lock is not None:
@@ -932,6 +1137,8 @@ def test_bad_input(
             result = run_main(*args)
     else:
         result = run_main(*args)
+    if case.unreadable is not None:
+        (folder / case.unreadable).chmod(0o644)
     assert_one_error_line(result, case.fragment, case.status)
     assert tree(folder) == before  # every file byte-identical, none added or removed
     assert not workspace.exists()  # refused before the workspace was made

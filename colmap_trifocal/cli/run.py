@@ -13,8 +13,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..common.arguments import seed
-from ..common.errors import CalibrationError
+from ..common.arguments import integer_in, seed
 from ..common.files import Output, refuse_outputs_over_inputs
 from .output import check_output_file, check_output_folder, native_output_silenced, warn
 
@@ -23,7 +22,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     """``run IMAGES WORKSPACE``: features, calibration, mapping, bundle adjustment."""
     from ..database.camera_groups import GROUPINGS
     from ..database.cameras import SUPPORTED_MODELS
-    from ..database.features import MATCHERS
+    from ..database.features import MATCHERS, MAX_IMAGE_SIZE_RANGE
     from ..intrinsics.calibrate import METHODS
     from ..reconstruction.mapping import MAPPERS, REFINE_CHOICES
     from ..reconstruction.workflow import RunOptions
@@ -37,7 +36,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     run.add_argument(
         "workspace", type=Path, help="output folder: database.db, sparse/0, report.json"
     )
-    run.add_argument("--max-image-size", type=int, default=RunOptions.max_image_size)
+    run.add_argument(
+        "--max-image-size",
+        type=integer_in(*MAX_IMAGE_SIZE_RANGE),
+        default=RunOptions.max_image_size,
+        help="longest image side for SIFT, in pixels",
+    )
     run.add_argument("--matcher", choices=MATCHERS, default=RunOptions.matcher)
     run.add_argument(
         "--camera-model",
@@ -77,8 +81,6 @@ def run(args: argparse.Namespace) -> int:
     """Check, run the pipeline, print the report (and render the PNG); exit status 0."""
     from ..reconstruction.workflow import RunOptions, run_inputs, run_pipeline, workspace_outputs
 
-    if args.max_image_size < 100:
-        raise CalibrationError("--max-image-size must be at least 100 pixels")
     progress = sys.stderr.isatty()
     options = RunOptions(
         max_image_size=args.max_image_size,
@@ -111,6 +113,8 @@ def run(args: argparse.Namespace) -> int:
     for camera in report["cameras"]:
         if camera["warning"] is not None:
             warn(camera["warning"])
+    for skipped in report["skipped_images"]:  # as COLMAP skips what it cannot read
+        warn(f"skipped {skipped['name']}: {skipped['reason']}")
     if args.png is not None:
         from ..reconstruction.visualize import show
 

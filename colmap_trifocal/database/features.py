@@ -9,6 +9,9 @@ import pycolmap
 from ..common.errors import CalibrationError
 
 MATCHERS = ("exhaustive", "sequential")
+#: Longest image side for SIFT, in pixels: from a size that still has features up to the
+#: largest value COLMAP's option (a C++ ``int``) holds (no downscaling in practice).
+MAX_IMAGE_SIZE_RANGE = (100, 2**31 - 1)
 #: pycolmap's camera modes: ``auto`` is COLMAP's default (``colmap feature_extractor``,
 #: the GUI, ``pycolmap.extract_features``): measured with pycolmap 4.2.1, one camera
 #: per image, all with the same parameters when the images share size and EXIF data.
@@ -18,6 +21,15 @@ CAMERA_MODES = {
     "per-folder": pycolmap.CameraMode.PER_FOLDER,
     "per-image": pycolmap.CameraMode.PER_IMAGE,
 }
+
+
+def check_max_image_size(value: int) -> None:
+    """Raise CalibrationError unless ``value`` is an integer in :data:`MAX_IMAGE_SIZE_RANGE`."""
+    low, high = MAX_IMAGE_SIZE_RANGE
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise CalibrationError(
+            f"max image size must be an integer in [{low}, {high}] pixels, got {value!r}"
+        )
 
 
 def build_database(
@@ -46,6 +58,7 @@ def build_database(
             what COLMAP's own tools do.
     """
     image_dir, database = Path(image_dir), Path(database)
+    check_max_image_size(max_image_size)
     if database.exists():
         raise CalibrationError(f"database already exists: {database}")
     if matcher not in MATCHERS:

@@ -26,14 +26,12 @@ Nothing is printed: each stage is logged (package logger) and announced to an op
 from __future__ import annotations
 
 import json
-import shutil
 import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pycolmap
 
@@ -41,7 +39,7 @@ from ..common.errors import CalibrationError
 from ..common.files import Input, Output, refuse_outputs_over_inputs, write_text_atomically
 from ..common.log import logger
 from ..database.cameras import PINHOLE_MODELS, CameraInfo
-from ..database.features import build_database
+from ..database.features import build_database, check_max_image_size
 from ..database.shared_cameras import merge_group_cameras
 from ..database.snapshot import copy_database, read_database, write_intrinsics
 from ..intrinsics.calibrate import (
@@ -50,6 +48,7 @@ from ..intrinsics.calibrate import (
     updated_cameras,
 )
 from ..intrinsics.results import PARAMETER_NAMES, apply_cameras
+from .images import IMAGE_SUFFIXES, ImageListing, list_images
 from .mapping import (
     MAPPERS,
     REFINE_CHOICES,
@@ -64,9 +63,7 @@ from .mapping import (
     registered_images_per_camera,
 )
 from .visualize import load_model
-
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
-WORKSPACE_OUTPUTS = ("database.db", "sparse", "report.json")
+from .workspace import WORKSPACE_OUTPUTS, open_workspace
 
 
 @dataclass
@@ -92,42 +89,8 @@ class RunOptions:
     overwrite: bool = False
     progress: bool = False
 
-
-def list_images(image_dir: Path) -> list[str]:
-    """Names of the readable images in ``image_dir`` (CalibrationError otherwise)."""
-    if not image_dir.is_dir():
-        raise CalibrationError(f"image folder not found: {image_dir}")
-    names = sorted(p.name for p in image_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    if not names:
-        raise CalibrationError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in {image_dir}")
-    for name in names:
-        if cv2.imread(str(image_dir / name), cv2.IMREAD_REDUCED_GRAYSCALE_8) is None:
-            raise CalibrationError(f"cannot read image {image_dir / name}")
-    if len(names) < 3:
-        raise CalibrationError(f"{image_dir} has {len(names)} image(s); at least 3 are needed")
-    return names
-
-
-def prepare_workspace(workspace: Path, overwrite: bool) -> None:
-    """Create the workspace; refuse one with other content unless ``overwrite``.
-
-    With ``overwrite`` only this tool's outputs are removed (database.db, sparse/,
-    report.json); other files are left alone.
-    """
-    if workspace.exists() and not workspace.is_dir():
-        raise CalibrationError(f"workspace is not a folder: {workspace}")
-    workspace.mkdir(parents=True, exist_ok=True)
-    if any(workspace.iterdir()):
-        if not overwrite:
-            raise CalibrationError(
-                f"workspace {workspace} is not empty (use --overwrite to replace its results)"
-            )
-        for name in WORKSPACE_OUTPUTS:
-            target = workspace / name
-            if target.is_dir():
-                shutil.rmtree(target)
-            elif target.exists():
-                target.unlink()
+    def __post_init__(self) -> None:
+        check_max_image_size(self.max_image_size)
 
 
 def run_inputs(images: Path | None, options: RunOptions) -> list[Input]:
@@ -185,8 +148,23 @@ def run_pipeline(
         raise CalibrationError("--model needs the --database its images were matched in")
     check_inputs_survive(images, workspace, options)
     given_model = load_model(options.model) if options.model is not None else None
-    names = list_images(images) if images is not None and options.database is None else None
-    prepare_workspace(workspace, options.overwrite)
+    listing = None
+    if images is not None and options.database is None:
+        listing = list_images(images, options.max_image_size)
+    with open_workspace(workspace, options.overwrite):
+        return _run_stages(images, listing, workspace, options, given_model, on_stage)
+
+
+def _run_stages(
+    images: Path | None,
+    listing: ImageListing | None,
+    workspace: Path,
+    options: RunOptions,
+    given_model: pycolmap.Reconstruction | None,
+    on_stage: Callable[[str], None] | None,
+) -> dict:
+    """The stages of :func:`run_pipeline` in the prepared, locked workspace; the report."""
+    names = None if listing is None else listing.names
     database = workspace / "database.db"
     seconds: dict[str, float] = {}
 
@@ -284,6 +262,8 @@ def run_pipeline(
     reconstruction.write(model_dir)
     report = build_report(reconstruction, calibrations, seconds, options)
     report["mapping"] = mapping
+    # Files with an image suffix that the extraction did not get (COLMAP skips them too).
+    report["skipped_images"] = [asdict(s) for s in listing.skipped] if listing else []
     write_text_atomically(workspace / "report.json", json.dumps(report, indent=2) + "\n")
     logger.info("wrote %s", workspace / "report.json")
     return report
