@@ -45,7 +45,7 @@ import pycolmap
 import pytest
 from conftest import CliResult, assert_one_error_line, run_cli, synthesize
 
-from colmap_trifocal.database import snapshot as database_module
+from colmap_trifocal.database import writing as database_module
 
 PARAMS = [1100.0, 1250.0, 530.0, 370.0]
 PRIOR = "1140,1210,545,360"

@@ -13,7 +13,7 @@ import pycolmap
 import pytest
 
 from colmap_trifocal.common.errors import CalibrationError
-from colmap_trifocal.database import snapshot as database_module
+from colmap_trifocal.database import sqlite_files as database_module
 from colmap_trifocal.database.cameras import CameraInfo
 from colmap_trifocal.database.snapshot import read_database, write_intrinsics
 
