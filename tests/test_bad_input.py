@@ -393,6 +393,16 @@ def _hot_journal(folder: Path, good: Path) -> Path:
     return path
 
 
+#: COLMAP's ``kMaxNumImages``: ``pair_id = MAX_NUM_IMAGES * id1 + id2``.
+MAX_NUM_IMAGES = 2**31 - 1
+#: Gives the verified pair of images 1 and 2 another pair id (the one argument).
+_FIRST_PAIR_ID = f"UPDATE two_view_geometries SET pair_id = ? WHERE pair_id = {MAX_NUM_IMAGES + 2}"
+
+
+def _pair_id(id1: int, id2: int) -> int:
+    return MAX_NUM_IMAGES * id1 + id2
+
+
 _MODEL: dict[str, bytes] = {}
 
 
@@ -706,6 +716,14 @@ CASES: dict[str, Case] = {
         _blob_edit("UPDATE cameras SET width = 0, height = 0"), "image size of 0x0"
     ),
     "hot rollback journal": Case(_hot_journal, "hot rollback journal"),
+    # ----- issue 22: what COLMAP itself would refuse
+    "verified pair of image id 2**31 - 1": Case(
+        _blob_edit(_FIRST_PAIR_ID, _pair_id(MAX_NUM_IMAGES, 1)),
+        "verified image pair 4611686014132420610 refers to image id 2147483647, which the",
+    ),
+    "verified pair of a missing image": Case(
+        _blob_edit(_FIRST_PAIR_ID, _pair_id(1, 99)), "refers to image id 99, which the database"
+    ),
 }
 
 

@@ -138,7 +138,8 @@ def _verified_pairs(
 
     Per pair only what cannot wait is done in Python; the duplicate test (median
     displacement of ``DUPLICATE_SAMPLE`` evenly spaced matches) runs on all pairs at
-    once.
+    once. A pair with inlier matches must refer to two images of the database: COLMAP's
+    own mapper fails on one that does not (``DatabaseCache``), so it is refused here too.
 
     Returns:
         How many pairs with inlier matches were left out, by reason: ``"degenerate"``
@@ -151,15 +152,18 @@ def _verified_pairs(
     spacing = np.linspace(0.0, 1.0, DUPLICATE_SAMPLE)
     ids = np.asarray(pair_ids, dtype=np.uint64)
     image_pairs = np.column_stack([ids // MAX_NUM_IMAGES, ids % MAX_NUM_IMAGES]).tolist()
-    for (id1, id2), tvg in zip(image_pairs, geometries, strict=True):
+    for pair_id, (id1, id2), tvg in zip(pair_ids, image_pairs, geometries, strict=True):
         inliers = np.asarray(tvg.inlier_matches).reshape(-1, 2)
         if inliers.shape[0] < 1:
             continue
+        unknown = [i for i in (id1, id2) if i not in contents.image_names]
+        if unknown:
+            raise CalibrationError(
+                f"corrupt database: verified image pair {pair_id} refers to image id "
+                f"{unknown[0]}, which the database does not have: {path}"
+            )
         if int(tvg.config) in _EXCLUDED_CONFIGS:
             skipped["degenerate"] += 1
-            continue
-        if id1 not in contents.keypoints or id2 not in contents.keypoints:
-            logger.warning("skipping matches of unknown image pair (%d, %d)", id1, id2)
             continue
         fundamental = _pair_fundamental(tvg, contents, id1, id2) if fundamentals else None
         if id1 > id2:  # COLMAP normalises pairs to id1 < id2; kept for safety
