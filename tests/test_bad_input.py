@@ -724,6 +724,14 @@ CASES: dict[str, Case] = {
     "verified pair of a missing image": Case(
         _blob_edit(_FIRST_PAIR_ID, _pair_id(1, 99)), "refers to image id 99, which the database"
     ),
+    "keypoints of 1 column": Case(  # x and y as 2 rows each: pycolmap read them as (n, 1)
+        _blob_edit("UPDATE keypoints SET rows = rows * cols, cols = 1 WHERE image_id = 2"),
+        "keypoints of image 2 (camera000001_frame000001.png) have 1 column, COLMAP writes 2, 4",
+    ),
+    "inlier matches of 1 column": Case(
+        _blob_edit("UPDATE two_view_geometries SET rows = rows * cols, cols = 1"),
+        "the inlier matches of image pair 2147483649 have 1 column, COLMAP writes 2",
+    ),
 }
 
 

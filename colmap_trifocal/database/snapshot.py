@@ -56,6 +56,8 @@ DUPLICATE_DISPLACEMENT_PX = 1.0
 DUPLICATE_SAMPLE = 32
 #: COLMAP's ``kMaxNumImages``: ``pair_id = MAX_NUM_IMAGES * id1 + id2``, image ids below it.
 MAX_NUM_IMAGES = 2**31 - 1
+#: Column counts of COLMAP's keypoint blobs: x, y [, scale, orientation | a11, a12, a21, a22].
+KEYPOINT_COLUMNS = (2, 4, 6)
 
 _Config = pycolmap.TwoViewGeometryConfiguration
 #: Two-view geometries whose inliers are not used: failed or watermark-only pairs.
@@ -213,7 +215,8 @@ def _check_snapshot(snapshot: Path, path: Path) -> int:
 
     pycolmap trusts the shape stored next to a blob: a negative or too large ``rows``
     makes it allocate without bound (``std::bad_alloc``), a short blob is read past its
-    end.
+    end, and a blob of another column count than COLMAP writes is not (x, y, ...) or
+    (index1, index2).
     """
     con = connect(snapshot, "mode=ro")
     try:
@@ -228,6 +231,25 @@ def _check_snapshot(snapshot: Path, path: Path) -> int:
                     f"corrupt database: {table} row {row[0]} claims {row[1]}x{row[2]} values "
                     f"that its data does not hold: {path}"
                 )
+        columns = ", ".join(map(str, KEYPOINT_COLUMNS))
+        row = con.execute(
+            "SELECT keypoints.image_id, images.name, keypoints.cols FROM keypoints "
+            f"LEFT JOIN images USING (image_id) WHERE rows > 0 AND cols NOT IN ({columns}) "
+            "LIMIT 1"
+        ).fetchone()
+        if row is not None:
+            raise CalibrationError(
+                f"corrupt database: the keypoints of image {row[0]} ({row[1]}) have "
+                f"{_columns(row[2])}, COLMAP writes 2, 4 or 6: {path}"
+            )
+        row = con.execute(
+            "SELECT pair_id, cols FROM two_view_geometries WHERE rows > 0 AND cols != 2 LIMIT 1"
+        ).fetchone()
+        if row is not None:
+            raise CalibrationError(
+                f"corrupt database: the inlier matches of image pair {row[0]} have "
+                f"{_columns(row[1])}, COLMAP writes 2: {path}"
+            )
         tables = {name for (name,) in con.execute("SELECT name FROM sqlite_master")}
         if "matches" not in tables:
             return 0
@@ -236,6 +258,10 @@ def _check_snapshot(snapshot: Path, path: Path) -> int:
         raise database_error(exc, path) from exc
     finally:
         con.close()
+
+
+def _columns(count: int) -> str:
+    return f"{count} column" if count == 1 else f"{count} columns"
 
 
 def _check_keypoints_finite(contents: DatabaseContents, path: Path) -> None:
