@@ -27,6 +27,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import resource
 import shutil
 import signal
@@ -45,6 +46,7 @@ import pycolmap
 import pytest
 from conftest import CliResult, assert_one_error_line, run_cli, synthesize
 
+from colmap_trifocal.database import sqlite_files
 from colmap_trifocal.database import writing as database_module
 
 PARAMS = [1100.0, 1250.0, 530.0, 370.0]
@@ -1020,6 +1022,77 @@ def test_no_space_for_the_backup(
     ]
     assert sha256(database_copy) == before
     assert listing(database_copy.parent) == ["database.db"]
+
+
+#: In a child: write new params to the database argv[1] with the backup's copy replaced by
+#: a partial copy, then argv[2]: "kill" (SIGKILL itself) or "wait" (hold the write lock
+#: until stdin closes).
+_HALF_A_BACKUP = """
+import os, signal, sys
+from pathlib import Path
+from colmap_trifocal.database.snapshot import read_database, write_intrinsics
+
+def partial_copy(path, target):
+    target.write_bytes(path.read_bytes()[:4096])
+    if sys.argv[2] == "kill":
+        os.kill(os.getpid(), signal.SIGKILL)
+    print("copying", flush=True)
+    sys.stdin.readline()
+    os._exit(0)
+
+sys.modules[write_intrinsics.__module__]._copy_database = partial_copy
+path = Path(sys.argv[1])
+cameras = read_database(path).cameras
+write_intrinsics(path, {i: c.with_intrinsics(1000, 1000, 500, 400) for i, c in cameras.items()})
+"""
+
+
+def _temporary_copies(folder: Path) -> list[str]:
+    return [name for name in listing(folder) if name.startswith(".database.db.bak.")]
+
+
+def test_a_backup_killed_while_copying_is_removed_by_the_next_write(
+    database_copy: Path, run_main: Callable[..., CliResult]
+) -> None:
+    """SIGKILL while the backup is copied (nothing can clean up) leaves its hidden temporary
+    copy behind; the next ``--write`` removes it, and keeps only its own ``.bak``."""
+    original = database_copy.read_bytes()
+    child = subprocess.run(
+        [sys.executable, "-c", _HALF_A_BACKUP, str(database_copy), "kill"], timeout=120
+    )
+    assert child.returncode == -signal.SIGKILL
+    assert database_copy.read_bytes() == original
+    (left,) = _temporary_copies(database_copy.parent)
+    assert re.fullmatch(r"\.database\.db\.bak\.\w{8}\.tmp", left)
+    status, lines = _main(run_main, "calibrate", database_copy, *QUICK)
+    assert (status, lines) == (0, [])
+    assert listing(database_copy.parent) == ["database.db", "database.db.bak"]
+    assert database_copy.with_name("database.db.bak").read_bytes() == original
+
+
+def test_the_copy_of_a_running_write_is_left_alone(
+    database_copy: Path, monkeypatch: pytest.MonkeyPatch, run_main: Callable[..., CliResult]
+) -> None:
+    """A write that is still copying its backup holds the write lock: another ``--write``
+    is refused as locked and removes nothing."""
+    monkeypatch.setattr(sqlite_files, "_LOCK_TIMEOUT_S", 0.05)
+    child = subprocess.Popen(
+        [sys.executable, "-c", _HALF_A_BACKUP, str(database_copy), "wait"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert child.stdout is not None and child.stdout.readline() == "copying\n"
+        (running,) = _temporary_copies(database_copy.parent)
+        status, lines = _main(run_main, "calibrate", database_copy, *QUICK)
+        locked = f"error: database is locked by another process: {database_copy}"
+        assert (status, lines) == (2, [locked])
+        assert _temporary_copies(database_copy.parent) == [running]
+    finally:
+        assert child.stdin is not None
+        child.stdin.close()
+        child.wait(timeout=60)
 
 
 # --------------------------------------------------------------------------- Ctrl-C, real SIGINT

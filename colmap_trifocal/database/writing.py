@@ -1,12 +1,13 @@
 """Write calibrated intrinsics into the user's COLMAP database: backup, one transaction, check.
 
 Order of events: take the write lock (``BEGIN IMMEDIATE``: no other connection can commit
-from now on), remove backup copies that earlier writes left unfinished, check the cameras,
-copy the database to a hidden temporary file, flush it to disk and give it the name
-``<name>.bak`` (``.bak1``, ... if taken), UPDATE, COMMIT, read back. Until COMMIT any error
-or interrupt (Ctrl-C, SIGTERM, SIGHUP) removes the backup and rolls back, leaving the
-database byte-identical and no backup behind; COMMIT itself is the one step during which
-these signals wait (:func:`_write_and_commit`).
+from now on), remove backup copies that earlier writes left unfinished (a write makes one
+only while it holds that lock, so one seen now belongs to a write that was killed), check
+the cameras, copy the database to a hidden temporary file, flush it to disk and give it
+the name ``<name>.bak`` (``.bak1``, ... if taken), UPDATE, COMMIT, read back. Until COMMIT
+any error or interrupt (Ctrl-C, SIGTERM, SIGHUP) removes the backup and rolls back,
+leaving the database byte-identical and no backup behind; COMMIT itself is the one step
+during which these signals wait (:func:`_write_and_commit`).
 
 The write is Python's ``sqlite3`` with SQL, not pycolmap's ``Database.update_camera``:
 pycolmap's ``DatabaseTransaction`` ends with ``END TRANSACTION`` whatever happened in it (a
@@ -115,6 +116,8 @@ def _write_and_commit(
     back; an interrupt after COMMIT says that the database was written.
     """
     try:
+        for stale in _remove_temporaries(path):
+            logger.info("removed %s: the copy of a backup that did not finish", stale)
         _check_cameras_match(con, cameras, path)
         if backup is not None:
             _make_backup(path, backup)
