@@ -290,7 +290,7 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     if args.refine_distortion and args.refine == "none":
         raise CalibrationError("--refine-distortion needs --refine ba")
     if args.model is not None:
-        from .reconstruction.into_model import check_output_folder, read_model
+        from .reconstruction.into_model import check_model_images, check_output_folder, read_model
 
         check_output_folder(args.output, args.model)
         read_model(args.model)  # a one-line error now, not after the calibration
@@ -304,6 +304,8 @@ def _run_calibrate(args: argparse.Namespace) -> int:
         check_writable(args.database)
     check_options(options)
     contents, read_seconds = read_contents(args.database)
+    if args.model is not None:
+        check_model_images(read_model(args.model), contents.image_names.values(), args.model)
     by_method, skipped = calibrate_groups(contents, options, (options.method,))
     results = by_method[options.method]
     add_read_seconds(results, read_seconds)

@@ -437,6 +437,17 @@ def _run(*args: object) -> Callable[[Path, Path, Path], tuple]:
     return lambda folder, path, workspace: ("run", folder, workspace, "--database", path, *args)
 
 
+def _model_of_other_images(folder: Path, good: Path) -> Path:
+    """The good database, and in ``folder/sparse/0`` a model of the same camera and image
+    size whose images have other names (another database's)."""
+    model = _model(folder, images=False)
+    reconstruction = pycolmap.Reconstruction(model)
+    for image in reconstruction.images.values():
+        image.name = f"other_{image.name}"
+    reconstruction.write(model)
+    return _copy(folder, good)
+
+
 def _database_in_workspace(folder: Path, good: Path) -> Path:
     """An earlier run's workspace (the folder) with a model in sparse/0; the database in
     another folder of it."""
@@ -729,6 +740,11 @@ CASES: dict[str, Case] = {
     "keypoints of 1 column": Case(  # x and y as 2 rows each: pycolmap read them as (n, 1)
         _blob_edit("UPDATE keypoints SET rows = rows * cols, cols = 1 WHERE image_id = 2"),
         "keypoints of image 2 (camera000001_frame000001.png) have 1 column, COLMAP writes 2, 4",
+    ),
+    "calibrate --model of another database": Case(
+        _model_of_other_images,
+        "6 of the model's 6 images are not in the database (e.g. other_camera000001_frame",
+        argv=lambda f, p, w: ("calibrate", p, "--model", f / "sparse" / "0", "--output", w),
     ),
     "inlier matches of 1 column": Case(
         _blob_edit("UPDATE two_view_geometries SET rows = rows * cols, cols = 1"),
