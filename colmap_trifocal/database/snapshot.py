@@ -37,6 +37,8 @@ from .cameras import CameraInfo
 from .sqlite_files import connect, copy_database, database_error
 from .writing import check_writable, write_intrinsics
 
+#: The database stage's entry points: reading here, writing in :mod:`.writing`, the copy in
+#: :mod:`.sqlite_files`.
 __all__ = [
     "DatabaseContents",
     "check_writable",

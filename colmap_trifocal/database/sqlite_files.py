@@ -4,7 +4,8 @@ Everything that opens the user's database with Python's ``sqlite3`` goes through
 that a lock held elsewhere waits ``_LOCK_TIMEOUT_S`` seconds everywhere, every SQLite error
 becomes the same one-line :class:`CalibrationError` (classified by SQLite's error code), and
 the user's file is copied one way: :func:`copy_database`, used for the snapshot that is
-read, the copy ``run`` works on and the backup before a write.
+read, the copy ``run`` works on, and the backup before a write when committed changes wait
+in the ``-wal`` (otherwise the backup is the file's own bytes, see :mod:`.writing`).
 
 pycolmap is never pointed at the user's file: ``pycolmap.Database.open`` writes to an
 existing database (schema set-up rewrites the header even when nothing else changes), and

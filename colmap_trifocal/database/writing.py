@@ -236,8 +236,18 @@ class _Backup:
         if self.identity is not None:
             for entry in os.scandir(self.database.parent):
                 if pattern.fullmatch(entry.name) and _identity(Path(entry.path)) == self.identity:
-                    os.unlink(entry.path)
+                    _unlink(Path(entry.path))
         _remove_temporaries(self.database)
+
+
+def _unlink(path: Path) -> bool:
+    """Remove the file at ``path`` if it is there; False (and a warning) if that fails."""
+    try:
+        path.unlink(missing_ok=True)
+    except OSError as exc:
+        logger.warning("cannot remove %s: %s", path, exc.strerror or exc)
+        return False
+    return True
 
 
 def _identity(path: Path) -> tuple[int, int] | None:
@@ -261,15 +271,7 @@ def _temporaries(database: Path) -> list[Path]:
 def _remove_temporaries(database: Path) -> list[Path]:
     """Remove the temporary backup copies of ``database`` (the caller holds its write lock,
     so no running write is making one); return them."""
-    removed = []
-    for temporary in _temporaries(database):
-        try:
-            temporary.unlink(missing_ok=True)
-        except OSError as exc:
-            logger.warning("cannot remove %s: %s", temporary, exc.strerror or exc)
-        else:
-            removed.append(temporary)
-    return removed
+    return [temporary for temporary in _temporaries(database) if _unlink(temporary)]
 
 
 def _make_backup(path: Path, backup: _Backup) -> None:
