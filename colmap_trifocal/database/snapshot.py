@@ -154,8 +154,8 @@ def _verified_pairs(
     pairs: list[Pair] = []
     displacements: list[np.ndarray] = []
     spacing = np.linspace(0.0, 1.0, DUPLICATE_SAMPLE)
-    ids = np.asarray(pair_ids, dtype=np.uint64)
-    image_pairs = np.column_stack([ids // MAX_NUM_IMAGES, ids % MAX_NUM_IMAGES]).tolist()
+    ids, largest = np.asarray(pair_ids, dtype=np.uint64), np.uint64(MAX_NUM_IMAGES)
+    image_pairs = np.column_stack([ids // largest, ids % largest]).tolist()
     for pair_id, (id1, id2), tvg in zip(pair_ids, image_pairs, geometries, strict=True):
         inliers = np.asarray(tvg.inlier_matches).reshape(-1, 2)
         if inliers.shape[0] < 1:
