@@ -27,6 +27,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import resource
 import shutil
 import signal
@@ -53,7 +54,8 @@ from conftest import (
     without_root_file_access,
 )
 
-from colmap_trifocal.database import snapshot as database_module
+from colmap_trifocal.database import sqlite_files
+from colmap_trifocal.database import writing as database_module
 
 PARAMS = [1100.0, 1250.0, 530.0, 370.0]
 PRIOR = "1140,1210,545,360"
@@ -403,6 +405,16 @@ def _hot_journal(folder: Path, good: Path) -> Path:
     return path
 
 
+#: COLMAP's ``kMaxNumImages``: ``pair_id = MAX_NUM_IMAGES * id1 + id2``.
+MAX_NUM_IMAGES = 2**31 - 1
+#: Gives the verified pair of images 1 and 2 another pair id (the one argument).
+_FIRST_PAIR_ID = f"UPDATE two_view_geometries SET pair_id = ? WHERE pair_id = {MAX_NUM_IMAGES + 2}"
+
+
+def _pair_id(id1: int, id2: int) -> int:
+    return MAX_NUM_IMAGES * id1 + id2
+
+
 _MODEL: dict[str, bytes] = {}
 
 
@@ -433,6 +445,17 @@ def _models(cut: dict[str, int | None] | None = None, images: bool = True):
 def _run(*args: object) -> Callable[[Path, Path, Path], tuple]:
     """``run IMAGES WORKSPACE --database PATH ARGS`` (the folder as IMAGES)."""
     return lambda folder, path, workspace: ("run", folder, workspace, "--database", path, *args)
+
+
+def _model_of_other_images(folder: Path, good: Path) -> Path:
+    """The good database, and in ``folder/sparse/0`` a model of the same camera and image
+    size whose images have other names (another database's)."""
+    model = _model(folder, images=False)
+    reconstruction = pycolmap.Reconstruction(model)
+    for image in reconstruction.images.values():
+        image.name = f"other_{image.name}"
+    reconstruction.write(model)
+    return _copy(folder, good)
 
 
 def _database_in_workspace(folder: Path, good: Path) -> Path:
@@ -1097,6 +1120,27 @@ CASES: dict[str, Case] = {
         "--max-image-size: expected an integer, got '1600.5'",
         argv=_run_image_folder("--max-image-size", "1600.5"),
     ),
+    # ----- issue 22: what COLMAP itself would refuse
+    "verified pair of image id 2**31 - 1": Case(
+        _blob_edit(_FIRST_PAIR_ID, _pair_id(MAX_NUM_IMAGES, 1)),
+        "verified image pair 4611686014132420610 refers to image id 2147483647, which the",
+    ),
+    "verified pair of a missing image": Case(
+        _blob_edit(_FIRST_PAIR_ID, _pair_id(1, 99)), "refers to image id 99, which the database"
+    ),
+    "keypoints of 1 column": Case(  # x and y as 2 rows each: pycolmap read them as (n, 1)
+        _blob_edit("UPDATE keypoints SET rows = rows * cols, cols = 1 WHERE image_id = 2"),
+        "keypoints of image 2 (camera000001_frame000001.png) have 1 column, COLMAP writes 2, 4",
+    ),
+    "calibrate --model of another database": Case(
+        _model_of_other_images,
+        "6 of the model's 6 images are not in the database (e.g. other_camera000001_frame",
+        argv=lambda f, p, w: ("calibrate", p, "--model", f / "sparse" / "0", "--output", w),
+    ),
+    "inlier matches of 1 column": Case(
+        _blob_edit("UPDATE two_view_geometries SET rows = rows * cols, cols = 1"),
+        "the inlier matches of image pair 2147483649 have 1 column, COLMAP writes 2",
+    ),
 }
 
 
@@ -1389,6 +1433,78 @@ def test_no_space_for_the_backup(
     ]
     assert sha256(database_copy) == before
     assert listing(database_copy.parent) == ["database.db"]
+
+
+#: In a child: write new params to the database argv[1] with the backup's copy replaced by
+#: a partial copy, then argv[2]: "kill" (SIGKILL itself) or "wait" (hold the write lock
+#: until stdin closes).
+_HALF_A_BACKUP = """
+import os, signal, sys
+from pathlib import Path
+from colmap_trifocal.database.snapshot import read_database
+from colmap_trifocal.database.writing import write_intrinsics
+
+def partial_copy(path, target):
+    target.write_bytes(path.read_bytes()[:4096])
+    if sys.argv[2] == "kill":
+        os.kill(os.getpid(), signal.SIGKILL)
+    print("copying", flush=True)
+    sys.stdin.readline()
+    os._exit(0)
+
+sys.modules[write_intrinsics.__module__]._copy_database = partial_copy
+path = Path(sys.argv[1])
+cameras = read_database(path).cameras
+write_intrinsics(path, {i: c.with_intrinsics(1000, 1000, 500, 400) for i, c in cameras.items()})
+"""
+
+
+def _temporary_copies(folder: Path) -> list[str]:
+    return [name for name in listing(folder) if name.startswith(".database.db.bak.")]
+
+
+def test_a_backup_killed_while_copying_is_removed_by_the_next_write(
+    database_copy: Path, run_main: Callable[..., CliResult]
+) -> None:
+    """SIGKILL while the backup is copied (nothing can clean up) leaves its hidden temporary
+    copy behind; the next ``--write`` removes it, and keeps only its own ``.bak``."""
+    original = database_copy.read_bytes()
+    child = subprocess.run(
+        [sys.executable, "-c", _HALF_A_BACKUP, str(database_copy), "kill"], timeout=120
+    )
+    assert child.returncode == -signal.SIGKILL
+    assert database_copy.read_bytes() == original
+    (left,) = _temporary_copies(database_copy.parent)
+    assert re.fullmatch(r"\.database\.db\.bak\.\w{8}\.tmp", left)
+    status, lines = _main(run_main, "calibrate", database_copy, *QUICK)
+    assert (status, lines) == (0, [])
+    assert listing(database_copy.parent) == ["database.db", "database.db.bak"]
+    assert database_copy.with_name("database.db.bak").read_bytes() == original
+
+
+def test_the_copy_of_a_running_write_is_left_alone(
+    database_copy: Path, monkeypatch: pytest.MonkeyPatch, run_main: Callable[..., CliResult]
+) -> None:
+    """A write that is still copying its backup holds the write lock: another ``--write``
+    is refused as locked and removes nothing."""
+    monkeypatch.setattr(sqlite_files, "_LOCK_TIMEOUT_S", 0.05)
+    child = subprocess.Popen(
+        [sys.executable, "-c", _HALF_A_BACKUP, str(database_copy), "wait"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert child.stdout is not None and child.stdout.readline() == "copying\n"
+        (running,) = _temporary_copies(database_copy.parent)
+        status, lines = _main(run_main, "calibrate", database_copy, *QUICK)
+        locked = f"error: database is locked by another process: {database_copy}"
+        assert (status, lines) == (2, [locked])
+        assert _temporary_copies(database_copy.parent) == [running]
+    finally:
+        assert child.stdin is not None
+        child.stdin.close()
+        child.wait(timeout=60)
 
 
 # --------------------------------------------------------------------------- Ctrl-C, real SIGINT

@@ -13,9 +13,10 @@ import pycolmap
 import pytest
 
 from colmap_trifocal.common.errors import CalibrationError
-from colmap_trifocal.database import snapshot as database_module
+from colmap_trifocal.database import sqlite_files as database_module
 from colmap_trifocal.database.cameras import CameraInfo
-from colmap_trifocal.database.snapshot import read_database, write_intrinsics
+from colmap_trifocal.database.snapshot import read_database
+from colmap_trifocal.database.writing import write_intrinsics
 
 SIMPLE_RADIAL_PARAMS = [1280.0, 512.0, 384.0, 0.05]
 PINHOLE_PARAMS = [1100.0, 1250.0, 530.0, 370.0]

@@ -115,6 +115,12 @@ def run(args: argparse.Namespace) -> int:
     json_to_stdout = args.json is not None and is_stdout(args.json)
     check_options(options)
     contents, read_seconds = read_contents(args.database)
+    if args.model is not None:
+        from ..reconstruction import into_model
+
+        into_model.check_model_images(
+            into_model.read_model(args.model), contents.image_names.values(), args.model
+        )
     by_method, skipped = calibrate_groups(contents, options, (options.method,))
     results = by_method[options.method]
     add_read_seconds(results, read_seconds)
@@ -172,7 +178,7 @@ def _options(args: argparse.Namespace) -> CalibrationOptions:
 def _check_arguments(args: argparse.Namespace) -> None:
     """The flags that go together, and every output: writable, and no input overwritten
     (the database itself is the one output of ``--write``)."""
-    from ..database.snapshot import check_writable
+    from ..database.writing import check_writable
 
     if args.max_triplets < 1:
         raise CalibrationError("--max-triplets must be at least 1")

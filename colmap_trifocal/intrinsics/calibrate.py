@@ -37,7 +37,8 @@ from ..database.from_reconstruction import (
     model_intrinsics,
     read_reconstruction,
 )
-from ..database.snapshot import DatabaseContents, read_database, write_intrinsics
+from ..database.snapshot import DatabaseContents, read_database
+from ..database.writing import write_intrinsics
 from .camera_calibration import calibrate_camera
 from .group_results import GroupCalibration, SkippedGroup
 from .options import (  # noqa: F401  (re-exported: the public API)

@@ -11,6 +11,7 @@ estimate written in (poses and points unchanged), and after the refinement.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -77,6 +78,31 @@ def read_model(path: Path) -> pycolmap.Reconstruction:
     except (RuntimeError, ValueError) as exc:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[-1]
         raise CalibrationError(f"cannot read COLMAP model {path}: {first}") from None
+
+
+def check_model_images(
+    reconstruction: pycolmap.Reconstruction, image_names: Iterable[str], model: Path
+) -> None:
+    """Refuse a model whose images are not the database's (by name).
+
+    Camera ids, models and image sizes alone accept a model of another database taken
+    with the same camera: its poses and points then do not belong to the images the
+    estimate comes from.
+
+    Args:
+        reconstruction: the model read from ``model``.
+        image_names: the names of the database's images.
+        model: the model folder (for the message).
+    """
+    known = set(image_names)
+    foreign = sorted(
+        image.name for image in reconstruction.images.values() if image.name not in known
+    )
+    if foreign:
+        raise CalibrationError(
+            f"{len(foreign)} of the model's {len(reconstruction.images)} images are not in the "
+            f"database (e.g. {foreign[0]}): is the model from this database? {model}"
+        )
 
 
 def check_output_folder(output: Path, model: Path) -> None:

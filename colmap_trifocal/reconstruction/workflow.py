@@ -41,7 +41,9 @@ from ..common.log import logger
 from ..database.cameras import PINHOLE_MODELS, CameraInfo
 from ..database.features import build_database, check_max_image_size
 from ..database.shared_cameras import merge_group_cameras
-from ..database.snapshot import copy_database, read_database, write_intrinsics
+from ..database.snapshot import read_database
+from ..database.sqlite_files import copy_database
+from ..database.writing import write_intrinsics
 from ..intrinsics.calibrate import (
     CalibrationOptions,
     calibrate_contents,

@@ -1,0 +1,379 @@
+"""Write calibrated intrinsics into the user's COLMAP database: backup, one transaction, check.
+
+Order of events: take the write lock (``BEGIN IMMEDIATE``: no other connection can commit
+from now on), remove backup copies that earlier writes left unfinished (a write makes one
+only while it holds that lock, so one seen now belongs to a write that was killed), check
+the cameras, copy the database to a hidden temporary file, flush it to disk and give it
+the name ``<name>.bak`` (``.bak1``, ... if taken), UPDATE, COMMIT, read back. Until COMMIT
+any error or interrupt (Ctrl-C, SIGTERM, SIGHUP) removes the backup and rolls back,
+leaving the database byte-identical and no backup behind; COMMIT itself is the one step
+during which these signals wait (:func:`_write_and_commit`).
+
+The write is Python's ``sqlite3`` with SQL, not pycolmap's ``Database.update_camera``:
+pycolmap's ``DatabaseTransaction`` ends with ``END TRANSACTION`` whatever happened in it (a
+write interrupted half-way is committed, a failed COMMIT is only logged), opening the file
+with pycolmap rewrites its header, and pycolmap's own SQLite does not see the write lock of
+Python's ``sqlite3`` in the same process.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import sqlite3
+import stat
+import tempfile
+from contextlib import closing
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pycolmap
+
+from ..common.errors import CalibrationError, interrupts_deferred
+from ..common.log import logger
+from .cameras import CameraInfo
+from .sqlite_files import (
+    check_sqlite_file,
+    check_tables,
+    connect,
+    copy_database,
+    database_error,
+    sidecar,
+)
+
+
+def check_writable(path: Path) -> None:
+    """Raise :class:`CalibrationError` unless ``path`` is an SQLite file this process may change.
+
+    Cheap (no database access): the CLI calls it before a long calibration so that a
+    read-only database with ``--write`` is refused at once, not after minutes of work.
+    Read-only means no write permission, or no write bit at all (even for root), or a
+    folder in which the backup cannot be made.
+    """
+    path = Path(path)
+    check_sqlite_file(path)
+    if not os.access(path, os.W_OK) or not path.stat().st_mode & (
+        stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH
+    ):
+        raise CalibrationError(f"cannot write to read-only database: {path}")
+    if not os.access(path.parent, os.W_OK):
+        raise CalibrationError(f"cannot write next to the database (read-only directory): {path}")
+
+
+def write_intrinsics(
+    path: Path, cameras: dict[int, CameraInfo], backup: bool = True
+) -> Path | None:
+    """Write the cameras' params into the COLMAP database at ``path`` (in place).
+
+    Only the ``params`` column of the given cameras changes (see the module docstring for
+    the order of events and what an interrupt leaves behind).
+
+    Args:
+        path: COLMAP database.
+        cameras: camera_id -> camera with the new params (same model and size as stored).
+        backup: first copy the database to ``<name>.bak`` (or ``.bak1``, ``.bak2``, ... if
+            taken; an existing backup is never overwritten).
+
+    Returns:
+        The backup's path, or None if no backup was made (``backup=False`` or no cameras).
+
+    Raises:
+        CalibrationError: missing/invalid/read-only/locked database, unknown camera, model
+            or size mismatch, invalid params, no space for the backup, or failed
+            verification.
+        KeyboardInterrupt: interrupted; its message says so when the signal came during
+            COMMIT (the database is then written and the backup kept).
+    """
+    path = Path(path)
+    check_writable(path)
+    if not cameras:
+        logger.info("no cameras to write")
+        return None
+    _check_params(cameras)
+    made = _Backup(path) if backup else None
+    try:
+        with closing(connect(path, "mode=rw")) as con:
+            check_tables(con, path)
+            con.execute("BEGIN IMMEDIATE")
+            _write_and_commit(con, path, cameras, made)
+            _verify_written(con, cameras, path)
+    except sqlite3.Error as exc:
+        raise database_error(exc, path, "write") from exc
+    logger.info("wrote intrinsics of %d cameras to %s", len(cameras), path)
+    return None if made is None else made.published
+
+
+def _write_and_commit(
+    con: sqlite3.Connection, path: Path, cameras: dict[int, CameraInfo], backup: _Backup | None
+) -> None:
+    """Inside the caller's ``BEGIN IMMEDIATE``: check, back up, UPDATE, COMMIT.
+
+    SIGINT, SIGTERM and SIGHUP wait while COMMIT runs, so that it is never split; one that
+    arrived meanwhile is raised right after it. Whatever ends this before COMMIT has
+    happened (``con.in_transaction`` still true, or any error) removes the backup and rolls
+    back; an interrupt after COMMIT says that the database was written.
+    """
+    try:
+        for stale in _remove_temporaries(path):
+            logger.info("removed %s: the copy of a backup that did not finish", stale)
+        _check_cameras_match(con, cameras, path)
+        if backup is not None:
+            _make_backup(path, backup)
+        _update_params(con, cameras)
+        with interrupts_deferred():
+            _commit(con)
+    except BaseException as exc:
+        if con.in_transaction or not isinstance(exc, KeyboardInterrupt):
+            _undo(con, backup)
+            raise
+        kept = "no backup" if backup is None else f"backup: {backup.published}"
+        written = f"after the new intrinsics were written to {path}; {kept}"
+        raise KeyboardInterrupt(written) from None
+
+
+def _undo(con: sqlite3.Connection, backup: _Backup | None) -> None:
+    """Remove this write's backup files, then ROLLBACK (the files go while the write lock
+    still keeps other writers, and their temporary copies, away)."""
+    if backup is not None:
+        backup.remove()
+    if con.in_transaction:
+        con.execute("ROLLBACK")
+
+
+def _commit(con: sqlite3.Connection) -> None:
+    """COMMIT the caller's transaction."""
+    con.execute("COMMIT")
+
+
+# --------------------------------------------------------------------------- the cameras
+
+
+def _params_blob(camera: CameraInfo) -> bytes:
+    """COLMAP's ``cameras.params`` blob: the params as little-endian float64."""
+    return np.ascontiguousarray(camera.params, dtype="<f8").tobytes()
+
+
+def _check_params(cameras: dict[int, CameraInfo]) -> None:
+    """Refuse to store params that no COLMAP camera can have (non-finite, focal length <= 0)."""
+    for camera_id, cam in cameras.items():
+        if not np.all(np.isfinite(cam.params)):
+            raise CalibrationError(f"camera {camera_id}: refusing to write non-finite params")
+        fx, fy, _, _ = cam.intrinsics
+        if fx <= 0 or fy <= 0:
+            raise CalibrationError(
+                f"camera {camera_id}: refusing to write a focal length <= 0 "
+                f"(fx = {fx:.6g}, fy = {fy:.6g})"
+            )
+
+
+def _check_cameras_match(
+    con: sqlite3.Connection, cameras: dict[int, CameraInfo], path: Path
+) -> None:
+    """Each camera must exist in the database with the same model and image size."""
+    rows = {
+        int(cid): (int(model), int(width), int(height))
+        for cid, model, width, height in con.execute(
+            "SELECT camera_id, model, width, height FROM cameras"
+        )
+    }
+    for camera_id, cam in cameras.items():
+        if camera_id != cam.camera_id:
+            raise ValueError(f"cameras[{camera_id}] has camera_id {cam.camera_id}")
+        if camera_id not in rows:
+            raise CalibrationError(f"camera {camera_id} is not in the database: {path}")
+        expected = (int(pycolmap.CameraModelId(cam.model)), cam.width, cam.height)
+        if rows[camera_id] != expected:
+            raise CalibrationError(
+                f"camera {camera_id} in the database differs in model or size from the "
+                f"calibrated one: {path}"
+            )
+
+
+def _update_params(con: sqlite3.Connection, cameras: dict[int, CameraInfo]) -> None:
+    """The UPDATE of ``cameras.params`` (inside the caller's transaction)."""
+    con.executemany(
+        "UPDATE cameras SET params = ? WHERE camera_id = ?",
+        [(_params_blob(cam), camera_id) for camera_id, cam in cameras.items()],
+    )
+
+
+def _verify_written(con: sqlite3.Connection, cameras: dict[int, CameraInfo], path: Path) -> None:
+    """Read the params back and compare them bit for bit with what was written."""
+    for camera_id, cam in cameras.items():
+        row = con.execute("SELECT params FROM cameras WHERE camera_id = ?", (camera_id,)).fetchone()
+        if row is None or bytes(row[0]) != _params_blob(cam):
+            raise CalibrationError(f"verification failed after writing camera {camera_id}: {path}")
+
+
+# --------------------------------------------------------------------------- the backup
+
+
+@dataclass
+class _Backup:
+    """The backup one write makes of ``database``.
+
+    Attributes:
+        database: the database backed up.
+        temporary: the hidden file the copy is made in, ``.<name>.bak.XXXXXXXX.tmp``.
+        identity: ``(st_dev, st_ino)`` of that file: every name it gets is this backup's.
+        published: the name the complete copy was given (``<name>.bak``, ``.bak1``, ...).
+    """
+
+    database: Path
+    temporary: Path | None = None
+    identity: tuple[int, int] | None = None
+    published: Path | None = None
+
+    def remove(self) -> None:
+        """Remove every name of this backup's file, and every temporary copy of the database.
+
+        Called with the write lock held: no other write of the database is making a
+        temporary copy, so all of them are this write's or left by one that did not finish.
+        """
+        pattern = re.compile(rf"{re.escape(self.database.name)}\.bak\d*")
+        if self.identity is not None:
+            for entry in os.scandir(self.database.parent):
+                if pattern.fullmatch(entry.name) and _identity(Path(entry.path)) == self.identity:
+                    _unlink(Path(entry.path))
+        _remove_temporaries(self.database)
+
+
+def _unlink(path: Path) -> bool:
+    """Remove the file at ``path`` if it is there; False (and a warning) if that fails."""
+    try:
+        path.unlink(missing_ok=True)
+    except OSError as exc:
+        logger.warning("cannot remove %s: %s", path, exc.strerror or exc)
+        return False
+    return True
+
+
+def _identity(path: Path) -> tuple[int, int] | None:
+    """``(st_dev, st_ino)`` of the file at ``path`` itself (a symlink is not followed)."""
+    try:
+        st = os.lstat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
+
+
+def _temporaries(database: Path) -> list[Path]:
+    """The temporary backup copies next to ``database``: ``.<name>.bak.XXXXXXXX.tmp``, the
+    eight characters from :func:`tempfile.mkstemp` (letters, digits, ``_``)."""
+    pattern = re.compile(rf"\.{re.escape(database.name)}\.bak\.[a-z0-9_]{{8}}\.tmp")
+    return [
+        Path(entry.path) for entry in os.scandir(database.parent) if pattern.fullmatch(entry.name)
+    ]
+
+
+def _remove_temporaries(database: Path) -> list[Path]:
+    """Remove the temporary backup copies of ``database`` (the caller holds its write lock,
+    so no running write is making one); return them."""
+    return [temporary for temporary in _temporaries(database) if _unlink(temporary)]
+
+
+def _make_backup(path: Path, backup: _Backup) -> None:
+    """Copy the database at ``path`` to its backup: claim, copy and flush, publish.
+
+    Raises:
+        CalibrationError: the copy could not be made (no space, no permission, ...); the
+            caller removes what was made.
+    """
+    try:
+        _claim_backup_path(backup)
+        assert backup.temporary is not None
+        _copy_database(path, backup.temporary)
+        _publish_backup(backup)
+    except OSError as exc:
+        raise CalibrationError(
+            f"cannot back up the database, nothing written: {path} ({exc.strerror or exc})"
+        ) from exc
+    logger.info("backed up %s to %s", path, backup.published)
+
+
+def _claim_backup_path(backup: _Backup) -> None:
+    """Create the empty hidden file ``.<name>.bak.XXXXXXXX.tmp`` for the copy (permissions
+    as the umask gives a new file).
+
+    The copy is made under this name and only renamed to ``<name>.bak`` by
+    :func:`_publish_backup` once it is complete and on disk, so a ``.bak`` is never a
+    partial copy, whatever ends the process.
+    """
+    database = backup.database
+    fd, name = tempfile.mkstemp(dir=database.parent, prefix=f".{database.name}.bak.", suffix=".tmp")
+    try:
+        backup.temporary = Path(name)
+        st = os.fstat(fd)
+        backup.identity = st.st_dev, st.st_ino
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)
+    finally:
+        os.close(fd)
+
+
+def _copy_database(path: Path, target: Path) -> None:
+    """Copy the database at ``path`` into the existing file ``target`` and flush it to disk.
+
+    The caller holds the write lock, so nobody else can commit meanwhile. If the ``-wal``
+    file is empty the main file holds the whole database and is copied byte for byte (the
+    backup is then identical to the file); otherwise :func:`.copy_database` copies it, so
+    that committed changes still in the WAL are included.
+    """
+    wal = sidecar(path, "-wal")
+    if wal.exists() and wal.stat().st_size > 0:
+        copy_database(path, target)
+    else:
+        shutil.copyfile(path, target)
+        shutil.copystat(path, target)
+    fd = os.open(target, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _publish_backup(backup: _Backup) -> None:
+    """Give the complete copy the first free name ``<name>.bak``, ``.bak1``, ...
+
+    An existing backup is never overwritten: the name is taken with ``os.link``, which
+    fails if it exists (a file system without hard links falls back to a check and a
+    rename). The folder is flushed so that the name is on disk before the database
+    changes.
+    """
+    database, temporary = backup.database, backup.temporary
+    assert temporary is not None
+    index = 0
+    while True:
+        candidate = database.with_name(f"{database.name}.bak{index or ''}")
+        try:
+            os.link(temporary, candidate)
+        except FileExistsError:
+            index += 1
+            continue
+        except OSError:  # no hard links here
+            if candidate.exists():
+                index += 1
+                continue
+            os.rename(temporary, candidate)
+        else:
+            temporary.unlink()
+        backup.published = candidate
+        _sync_folder(database.parent)
+        return
+
+
+def _sync_folder(folder: Path) -> None:
+    """Flush a folder's entries (a new file name) to disk, where the system allows it."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
