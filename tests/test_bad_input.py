@@ -519,6 +519,32 @@ def _file(folder: Path, _good: Path) -> Path:
     return path
 
 
+# ----- issue 23: calibrate MODEL_DIR and several inputs
+
+
+def _only_cameras_bin(folder: Path, _good: Path) -> Path:
+    """A model folder holding only ``cameras.bin``."""
+    model = _model(folder)
+    for name in ("images.bin", "points3D.bin"):
+        (model / name).unlink()
+    return model
+
+
+def _two_image_model(folder: Path, _good: Path) -> Path:
+    """A model of 2 registered images (their tracks give no triplet)."""
+    model = folder / "sparse" / "0"
+    model.mkdir(parents=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        synthesize(Path(tmp) / "model.db", "PINHOLE", PARAMS, frames=2).write(model)
+    return model
+
+
+def _two_copies(folder: Path, good: Path) -> Path:
+    """``folder/database.db`` and ``folder/other.db``: two copies of the good database."""
+    shutil.copyfile(good, folder / "other.db")
+    return _copy(folder, good)
+
+
 CASES: dict[str, Case] = {
     "missing path": Case(lambda folder, _: folder / "nope.db", "database not found"),
     "directory": Case(lambda folder, _: folder, "is a directory"),
@@ -901,6 +927,56 @@ CASES: dict[str, Case] = {
     ),
     "run: an image is a dangling symlink (OpenCV's warning)": Case(
         _dangling_image, "cannot read image", argv=lambda f, p, w: ("run", p, w)
+    ),
+    # ----- issue 23: calibrate MODEL_DIR (a model's tracks) and several inputs
+    "empty folder: neither a database nor a model": Case(
+        lambda f, _: f, "not a COLMAP model folder either (no cameras, images, points3D"
+    ),
+    "model folder with only cameras.bin": Case(
+        _only_cameras_bin, "not a COLMAP model (no images, points3D .bin/.txt)"
+    ),
+    "model folder: truncated images.bin": Case(
+        _models({"images": 3000}), "truncated COLMAP model file"
+    ),
+    "model folder: garbage points3D.bin": Case(_models({"points3D": None}), "points3D.bin"),
+    "model of 2 registered images": Case(
+        _two_image_model, "the reconstruction has 2 registered image(s), at least 3"
+    ),
+    "model folder with --write": Case(
+        _models(), "--write stores the estimate in a database: ", ("--write",)
+    ),
+    "model folder with --model and --output": Case(
+        _models(),
+        "--model goes with a database: ",
+        argv=lambda f, p, w: ("calibrate", p, "--model", p, "--output", w),
+    ),
+    "model folder, --json is a file of it": Case(
+        _models(),
+        "is a file of MODEL: refusing",
+        argv=lambda f, p, w: ("calibrate", p, "--json", p / "cameras.bin"),
+    ),
+    "a glob pattern that matches nothing": Case(
+        lambda f, _: f / "*.sqlite", "no database or model folder matches"
+    ),
+    "several databases with --model": Case(
+        _model_and_database,
+        "--model takes one database, not several inputs",
+        argv=lambda f, p, w: ("calibrate", p, p, "--model", f / "sparse" / "0", "--output", w),
+    ),
+    "several inputs, --write with a model folder": Case(
+        _model_and_database,
+        "is a COLMAP model folder",
+        argv=lambda f, p, w: ("calibrate", p, f / "sparse" / "0", "--write"),
+    ),
+    "several databases, --json is one of them": Case(
+        _two_copies,
+        "--json",
+        argv=lambda f, p, w: ("calibrate", p, f / "other.db", "--json", f / "other.db"),
+    ),
+    "a glob of databases, --json is one of them": Case(
+        _two_copies,
+        "other.db is the database: refusing",
+        argv=lambda f, p, w: ("calibrate", f / "*.db", "--json", f / "other.db"),
     ),
 }
 
