@@ -1465,14 +1465,14 @@ def test_numerical_warnings_go_to_the_log_not_stderr(
     """A RuntimeWarning raised during a run (here a real float overflow in numpy, injected
     after the database is read) is logged (-v shows it); stderr stays empty (issue 15,
     item 8: such lines came before the ``error:`` line)."""
-    from colmap_trifocal.intrinsics import calibrate as calibrate_module
+    from colmap_trifocal.intrinsics import batch as batch_module  # calibrate's calibrate_path
 
     def overflow() -> None:
         with np.errstate(over="warn"):
             np.float64(1e300) * np.float64(1e300)
 
     monkeypatch.setattr(
-        calibrate_module, "calibrate_groups", _after(calibrate_module.calibrate_groups, overflow)
+        batch_module, "calibrate_groups", _after(batch_module.calibrate_groups, overflow)
     )
     with caplog.at_level("INFO", logger="colmap_trifocal"):
         status, lines = _main(run_main, "calibrate", database_copy, *QUICK_READ)
