@@ -603,6 +603,32 @@ _PROGRESSIVE_JPEG = _encoded(".jpg", texture_views(1)[0], cv2.IMWRITE_JPEG_PROGR
 _PNG16 = _encoded(".png", texture_views(1)[0].astype(np.uint16) * 257)
 
 
+# ----- issue 23: calibrate MODEL_DIR and several inputs
+
+
+def _only_cameras_bin(folder: Path, _good: Path) -> Path:
+    """A model folder holding only ``cameras.bin``."""
+    model = _model(folder)
+    for name in ("images.bin", "points3D.bin"):
+        (model / name).unlink()
+    return model
+
+
+def _two_image_model(folder: Path, _good: Path) -> Path:
+    """A model of 2 registered images (their tracks give no triplet)."""
+    model = folder / "sparse" / "0"
+    model.mkdir(parents=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        synthesize(Path(tmp) / "model.db", "PINHOLE", PARAMS, frames=2).write(model)
+    return model
+
+
+def _two_copies(folder: Path, good: Path) -> Path:
+    """``folder/database.db`` and ``folder/other.db``: two copies of the good database."""
+    shutil.copyfile(good, folder / "other.db")
+    return _copy(folder, good)
+
+
 CASES: dict[str, Case] = {
     "missing path": Case(lambda folder, _: folder / "nope.db", "database not found"),
     "directory": Case(lambda folder, _: folder, "is a directory"),
@@ -1140,6 +1166,56 @@ CASES: dict[str, Case] = {
     "inlier matches of 1 column": Case(
         _blob_edit("UPDATE two_view_geometries SET rows = rows * cols, cols = 1"),
         "the inlier matches of image pair 2147483649 have 1 column, COLMAP writes 2",
+    ),
+    # ----- issue 23: calibrate MODEL_DIR (a model's tracks) and several inputs
+    "empty folder: neither a database nor a model": Case(
+        lambda f, _: f, "not a COLMAP model folder either (no cameras, images, points3D"
+    ),
+    "model folder with only cameras.bin": Case(
+        _only_cameras_bin, "not a COLMAP model (no images, points3D .bin/.txt)"
+    ),
+    "model folder: truncated images.bin": Case(
+        _models({"images": 3000}), "truncated COLMAP model file"
+    ),
+    "model folder: garbage points3D.bin": Case(_models({"points3D": None}), "points3D.bin"),
+    "model of 2 registered images": Case(
+        _two_image_model, "the reconstruction has 2 registered image(s), at least 3"
+    ),
+    "model folder with --write": Case(
+        _models(), "--write stores the estimate in a database: ", ("--write",)
+    ),
+    "model folder with --model and --output": Case(
+        _models(),
+        "--model goes with a database: ",
+        argv=lambda f, p, w: ("calibrate", p, "--model", p, "--output", w),
+    ),
+    "model folder, --json is a file of it": Case(
+        _models(),
+        "is a file of MODEL: refusing",
+        argv=lambda f, p, w: ("calibrate", p, "--json", p / "cameras.bin"),
+    ),
+    "a glob pattern that matches nothing": Case(
+        lambda f, _: f / "*.sqlite", "no database or model folder matches"
+    ),
+    "several databases with --model": Case(
+        _model_and_database,
+        "--model takes one database, not several inputs",
+        argv=lambda f, p, w: ("calibrate", p, p, "--model", f / "sparse" / "0", "--output", w),
+    ),
+    "several inputs, --write with a model folder": Case(
+        _model_and_database,
+        "is a COLMAP model folder",
+        argv=lambda f, p, w: ("calibrate", p, f / "sparse" / "0", "--write"),
+    ),
+    "several databases, --json is one of them": Case(
+        _two_copies,
+        "--json",
+        argv=lambda f, p, w: ("calibrate", p, f / "other.db", "--json", f / "other.db"),
+    ),
+    "a glob of databases, --json is one of them": Case(
+        _two_copies,
+        "other.db is the database: refusing",
+        argv=lambda f, p, w: ("calibrate", f / "*.db", "--json", f / "other.db"),
     ),
 }
 
@@ -1704,14 +1780,14 @@ def test_numerical_warnings_go_to_the_log_not_stderr(
     """A RuntimeWarning raised during a run (here a real float overflow in numpy, injected
     after the database is read) is logged (-v shows it); stderr stays empty (issue 15,
     item 8: such lines came before the ``error:`` line)."""
-    from colmap_trifocal.intrinsics import calibrate as calibrate_module
+    from colmap_trifocal.intrinsics import batch as batch_module  # calibrate's calibrate_path
 
     def overflow() -> None:
         with np.errstate(over="warn"):
             np.float64(1e300) * np.float64(1e300)
 
     monkeypatch.setattr(
-        calibrate_module, "calibrate_groups", _after(calibrate_module.calibrate_groups, overflow)
+        batch_module, "calibrate_groups", _after(batch_module.calibrate_groups, overflow)
     )
     with caplog.at_level("INFO", logger="colmap_trifocal"):
         status, lines = _main(run_main, "calibrate", database_copy, *QUICK_READ)

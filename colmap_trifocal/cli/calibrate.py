@@ -4,6 +4,10 @@ Prints a table (one line per camera group), then writes the outputs in this orde
 model copy (``--model``/``--output``), the JSON (``--json``), the database (``--write``,
 last, so a failing output never leaves a changed database behind). Every argument and
 output path is checked before the database is read.
+
+A COLMAP model folder instead of a database is calibrated from its tracks
+(:mod:`.calibrate_model`); several inputs, a quoted glob pattern or ``--dask`` give one
+JSON line per camera group as each input finishes (:mod:`.batch`).
 """
 
 from __future__ import annotations
@@ -12,27 +16,39 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, TextIO
+from typing import TYPE_CHECKING
 
 from ..common.arguments import seed
 from ..common.errors import CalibrationError
 from ..common.files import Input, Output, refuse_outputs_over_inputs
-from .output import check_output_file, check_output_folder, is_stdout, warn, write_text_output
+from .output import check_output_file, check_output_folder, is_stdout, write_text_output
+from .tables import print_table
 
 if TYPE_CHECKING:
-    from ..intrinsics.calibrate import CalibrationOptions, GroupCalibration, SkippedGroup
+    from collections.abc import Callable
+
+    from ..database.snapshot import DatabaseContents
+    from ..intrinsics.calibrate import CalibrationOptions
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
-    """``calibrate DATABASE``: the contract in DESIGN.md."""
+    """``calibrate DATABASE [DATABASE ...]``: the contract in DESIGN.md."""
     from ..database.camera_groups import GROUPINGS
     from ..intrinsics.calibrate import METHODS, CalibrationOptions
     from ..reconstruction.mapping import REFINE_CHOICES
 
     calibrate = commands.add_parser(
-        "calibrate", help="estimate the intrinsics of the cameras of a COLMAP database"
+        "calibrate", help="estimate the intrinsics of the cameras of COLMAP databases or models"
     )
-    calibrate.add_argument("database", type=Path, help="COLMAP database with verified matches")
+    calibrate.add_argument(
+        "database",
+        type=Path,
+        nargs="+",
+        metavar="DATABASE",
+        help="COLMAP database with verified matches, or a COLMAP model folder (sparse/0: "
+        "calibrated from its tracks); several, or a quoted glob pattern: one JSON line per "
+        "camera group as each input finishes",
+    )
     calibrate.add_argument("--method", choices=METHODS, default="msac-opt")
     calibrate.add_argument(
         "--prior",
@@ -59,7 +75,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--json",
         type=Path,
         metavar="OUT",
-        help="write the results as JSON (-: to stdout, the table then goes to stderr)",
+        help="write the results as JSON (-: to stdout, the table then goes to stderr); "
+        "with several inputs as JSON lines (default: stdout)",
     )
     calibrate.add_argument(
         "--write",
@@ -97,36 +114,47 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         action="store_true",
         help="with --model --refine ba: also refine the distortion parameters",
     )
+    calibrate.add_argument(
+        "--dask",
+        metavar="ADDRESS",
+        help="calibrate the inputs on this Dask scheduler (tcp://host:8786); its workers "
+        "need this package and the inputs' paths",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
-    """Check everything, calibrate, print the table, write the outputs; exit status 0."""
-    from ..intrinsics.calibrate import (
-        add_read_seconds,
-        calibrate_groups,
-        check_options,
-        read_contents,
-        updated_cameras,
-        write_calibrations,
-    )
+    """One database, one model folder, or many inputs (:mod:`.batch`); the exit status."""
+    from ..intrinsics.batch import check_input_path, is_model_folder
+    from ..intrinsics.calibrate import check_options
+    from .batch import expand_inputs, run_batch
 
     options = _options(args)
-    _check_arguments(args)
-    json_to_stdout = args.json is not None and is_stdout(args.json)
+    if args.max_triplets < 1:
+        raise CalibrationError("--max-triplets must be at least 1")
     check_options(options)
-    contents, read_seconds = read_contents(args.database)
-    if args.model is not None:
-        from ..reconstruction import into_model
+    paths, several = expand_inputs(args.database)
+    if several or args.dask is not None:
+        return run_batch(args, paths, options)
+    (path,) = paths
+    check_input_path(path)
+    if is_model_folder(path):
+        from .calibrate_model import run_model
 
-        into_model.check_model_images(
-            into_model.read_model(args.model), contents.image_names.values(), args.model
-        )
-    by_method, skipped = calibrate_groups(contents, options, (options.method,))
-    results = by_method[options.method]
-    add_read_seconds(results, read_seconds)
+        return run_model(args, path, options)
+    return _run_database(args, path, options)
+
+
+def _run_database(args: argparse.Namespace, database: Path, options: CalibrationOptions) -> int:
+    """Check everything, calibrate, print the table, write the outputs; exit status 0."""
+    from ..intrinsics.batch import calibrate_path
+    from ..intrinsics.calibrate import updated_cameras, write_calibrations
+
+    _check_arguments(args, database)
+    json_to_stdout = args.json is not None and is_stdout(args.json)
+    results, skipped = calibrate_path(database, options, _model_check(args))
     # With the JSON on stdout, the table and messages go to stderr: stdout stays JSON.
     out = sys.stderr if json_to_stdout else sys.stdout
-    _print_table(results, skipped, out)
+    print_table(results, skipped, out)
     update = None
     if args.model is not None:
         from ..reconstruction.into_model import calibrate_model
@@ -146,9 +174,9 @@ def run(args: argparse.Namespace) -> int:
                 entry["model"] = update.to_json()
         write_text_output(args.json, json.dumps(entries, indent=2) + "\n", json_to_stdout)
     if args.write:
-        written = write_calibrations(args.database, results)
+        written = write_calibrations(database, results)
         if written:
-            print(f"wrote {written} camera(s) to {args.database}", file=out)
+            print(f"wrote {written} camera(s) to {database}", file=out)
         for r in results:
             if not r.determined_anything:
                 print(
@@ -175,20 +203,32 @@ def _options(args: argparse.Namespace) -> CalibrationOptions:
     )
 
 
-def _check_arguments(args: argparse.Namespace) -> None:
+def _model_check(args: argparse.Namespace) -> Callable[[DatabaseContents], None] | None:
+    """With ``--model``: refuse a model whose images are not the database's."""
+    if args.model is None:
+        return None
+    from ..reconstruction import into_model
+
+    def check(contents: DatabaseContents) -> None:
+        into_model.check_model_images(
+            into_model.read_model(args.model), contents.image_names.values(), args.model
+        )
+
+    return check
+
+
+def _check_arguments(args: argparse.Namespace, database: Path) -> None:
     """The flags that go together, and every output: writable, and no input overwritten
     (the database itself is the one output of ``--write``)."""
     from ..database.writing import check_writable
 
-    if args.max_triplets < 1:
-        raise CalibrationError("--max-triplets must be at least 1")
     if (args.model is None) != (args.output is None):
         raise CalibrationError("--model and --output go together")
     if args.model is None and (args.refine is not None or args.refine_distortion):
         raise CalibrationError("--refine and --refine-distortion need --model and --output")
     if args.refine_distortion and args.refine == "none":
         raise CalibrationError("--refine-distortion needs --refine ba")
-    inputs = [Input.database(args.database)]
+    inputs = [Input.database(database)]
     outputs = []
     if args.model is not None:
         from ..reconstruction import into_model
@@ -204,29 +244,4 @@ def _check_arguments(args: argparse.Namespace) -> None:
             outputs.append(Output("--json", args.json))
     refuse_outputs_over_inputs(outputs, inputs)
     if args.write:  # refuse a read-only database now, not after the calibration
-        check_writable(args.database)
-
-
-def _print_table(results: list[GroupCalibration], skipped: list[SkippedGroup], out: TextIO) -> None:
-    """One line per camera group to ``out``; warnings and skipped groups to stderr."""
-    from ..database.camera_groups import format_ids
-
-    print(
-        f"{'camera':>6} {'model':<14} {'method':<11} {'fx':>10} {'fy':>10} {'cx':>10} "
-        f"{'cy':>10} {'triplets':>9} {'time':>7} {'ids':>4}",
-        file=out,
-    )
-    for r in results:
-        print(
-            f"{r.camera_id:>6} {r.model:<14} {r.method:<11} {r.fx:>10.2f} {r.fy:>10.2f} "
-            f"{r.cx:>10.2f} {r.cy:>10.2f} {r.num_inlier_triplets:>4}/{r.num_triplets:<4} "
-            f"{r.seconds:>6.1f}s {len(r.camera_ids):>4}",
-            file=out,
-        )
-        if len(r.camera_ids) > 1:
-            print(f"{'':>6} shared by camera ids {format_ids(r.camera_ids)}", file=out)
-        warning = r.warning()
-        if warning is not None:
-            warn(warning)
-    for group in skipped:
-        warn(group.message())
+        check_writable(database)

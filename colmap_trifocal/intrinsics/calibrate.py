@@ -103,6 +103,14 @@ def calibrate_reconstruction(
     Raises:
         CalibrationError: bad input (see the message).
     """
+    return reconstruction_groups(reconstruction, options)[0]
+
+
+def reconstruction_groups(
+    reconstruction: pycolmap.Reconstruction | Path | str,
+    options: CalibrationOptions | None = None,
+) -> tuple[list[GroupCalibration], list[SkippedGroup]]:
+    """:func:`calibrate_reconstruction`'s results, and the groups it skipped."""
     options = _checked_options(options)
     if options.write:
         raise CalibrationError(
@@ -116,11 +124,12 @@ def calibrate_reconstruction(
     read_seconds = time.perf_counter() - clock
     grouping = grouping_cameras(contents.cameras) if options.group == "auto" else None
     methods = (options.method,)
-    results = calibrate_groups(contents, options, methods, grouping=grouping)[0][options.method]
+    by_method, skipped = calibrate_groups(contents, options, methods, grouping=grouping)
+    results = by_method[options.method]
     add_read_seconds(results, read_seconds)
     for result in results:
         result.reference = model_intrinsics(result.group_cameras)
-    return results
+    return results, skipped
 
 
 def _checked_options(options: CalibrationOptions | None) -> CalibrationOptions:
