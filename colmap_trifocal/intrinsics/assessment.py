@@ -97,8 +97,7 @@ def assess(
         estimated=estimated,
         source=source,
         focal_search=search_summary(search),
-        diagnosis=lens_note
-        or (None if all(observable.values()) else diagnose(tracks, estimate)),
+        diagnosis=lens_note or (None if all(observable.values()) else diagnose(tracks, estimate)),
         triplet_bundle=polished.summary,
         lens_distortion=None if lens is None else lens.summary(),
         distortion=distortion,

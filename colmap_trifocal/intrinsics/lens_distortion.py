@@ -277,9 +277,7 @@ def _jackknife_std(
     for position in agreeing:
         triplet = shared.triplets[position]
         poses, points = shared.poses_and_points(triplet)
-        parts.append(
-            reduced_information(fitted.intrinsics, poses, points, triplet.pixels, radial)
-        )
+        parts.append(reduced_information(fitted.intrinsics, poses, points, triplet.pixels, radial))
     q = 4 + len(radial)
     columns = [np.r_[1.0, 1.0, np.zeros(q - 2)]]  # the single focal length
     if refine_principal_point:

@@ -32,15 +32,14 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
-import numpy as np
-import pycolmap
 
 from ..common.errors import CalibrationError
 from ..common.files import Input, Output, refuse_outputs_over_inputs, write_text_atomically
 from ..common.log import logger
-from ..database.cameras import PINHOLE_MODELS, CameraInfo
+from ..database.cameras import PINHOLE_MODELS
 from ..database.features import build_database
 from ..database.shared_cameras import merge_group_cameras
 from ..database.snapshot import copy_database, read_database, write_intrinsics
@@ -49,20 +48,18 @@ from ..intrinsics.calibrate import (
     calibrate_contents,
     updated_cameras,
 )
-from ..intrinsics.results import PARAMETER_NAMES, apply_cameras
+from ..intrinsics.results import CameraCalibration, apply_cameras
 from .mapping import (
     MAPPERS,
     REFINE_CHOICES,
     InitialPair,
     MappingAttempt,
-    camera_intrinsics,
     describe_attempts,
     global_mapping,
     incremental_mapping_with_retries,
-    mean_reprojection_error,
     refine_intrinsics,
-    registered_images_per_camera,
 )
+from .report import RunReport, build_report
 from .visualize import load_model
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
@@ -169,11 +166,11 @@ def run_pipeline(
     workspace: Path,
     options: RunOptions,
     on_stage: Callable[[str], None] | None = None,
-) -> dict:
+) -> RunReport:
     """Run all stages; returns the report (also written to ``WORKSPACE/report.json``).
 
     ``on_stage`` receives one line as each long stage starts (features, mapping, bundle
-    adjustment); the mapping's retries, if any, are described in ``report["mapping"]["note"]``.
+    adjustment); the mapping's retries, if any, are described in ``report.mapping["note"]``.
     """
     if options.refine not in REFINE_CHOICES:
         raise CalibrationError(
@@ -226,7 +223,7 @@ def run_pipeline(
     seconds["calibrate"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    mapping: dict = {}
+    mapping: dict[str, Any] = {}
     refine = refined_while_mapping(calibrations)
     if given_model is not None:
         reconstruction = given_model
@@ -282,14 +279,21 @@ def run_pipeline(
     model_dir = workspace / "sparse" / "0"
     model_dir.mkdir(parents=True, exist_ok=True)
     reconstruction.write(model_dir)
-    report = build_report(reconstruction, calibrations, seconds, options)
-    report["mapping"] = mapping
-    write_text_atomically(workspace / "report.json", json.dumps(report, indent=2) + "\n")
+    report = build_report(
+        reconstruction,
+        calibrations,
+        method=options.method,
+        mapper=options.mapper,
+        refine=options.refine,
+        seconds=seconds,
+        mapping=mapping,
+    )
+    write_text_atomically(workspace / "report.json", json.dumps(report.to_json(), indent=2) + "\n")
     logger.info("wrote %s", workspace / "report.json")
     return report
 
 
-def refined_while_mapping(calibrations: list) -> dict[str, bool]:
+def refined_while_mapping(calibrations: list[CameraCalibration]) -> dict[str, bool]:
     """Which intrinsics mapping refines: those some camera's calibration did not determine,
     and the distortion of camera models that have it (also in the final bundle adjustment).
 
@@ -305,14 +309,9 @@ def refined_while_mapping(calibrations: list) -> dict[str, bool]:
     return {"focal_length": focal, "principal_point": principal, "distortion": distortion}
 
 
-def focal_estimated_cameras(calibrations: list) -> list[int]:
+def focal_estimated_cameras(calibrations: list[CameraCalibration]) -> list[int]:
     """Camera ids whose focal length the calibration estimated from the images (not held)."""
-    return [
-        int(camera_id)
-        for c in calibrations
-        if c.estimated["fx"]
-        for camera_id in getattr(c, "camera_ids", [c.camera_id])
-    ]
+    return [int(camera_id) for c in calibrations if c.estimated["fx"] for camera_id in c.camera_ids]
 
 
 #: Triplets of the calibration whose pairs are candidates for a seeded initial pair.
@@ -320,7 +319,7 @@ SEED_TRIPLETS = 8
 
 
 def seed_candidate_pairs(
-    calibrations: list, max_triplets: int = SEED_TRIPLETS
+    calibrations: list[CameraCalibration], max_triplets: int = SEED_TRIPLETS
 ) -> list[tuple[int, int]]:
     """Image pairs of each camera's best triplets: candidates for a seeded initial pair.
 
@@ -344,62 +343,3 @@ def _stage(message: str, on_stage: Callable[[str], None] | None) -> None:
     logger.info(message)
     if on_stage is not None:
         on_stage(message)
-
-
-def build_report(
-    reconstruction: pycolmap.Reconstruction,
-    calibrations: list,
-    seconds: dict[str, float],
-    options: RunOptions,
-) -> dict:
-    """The ``report.json`` content: per camera estimate, BA result, difference; timings."""
-    registered = registered_images_per_camera(reconstruction)
-    cameras = []
-    for calibration in calibrations:
-        camera_id = calibration.camera_id
-        ids = list(getattr(calibration, "camera_ids", [camera_id]))
-        in_model = [c for c in ids if c in reconstruction.cameras]
-        if not in_model:
-            continue  # none of the group's images was registered
-        refined = np.mean([camera_intrinsics(reconstruction.cameras[c]) for c in in_model], axis=0)
-        estimate = calibration.intrinsics
-        cameras.append(
-            {
-                "camera_id": camera_id,
-                "camera_ids": ids,
-                "model": calibration.model,
-                "trifocal": dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True)),
-                "trifocal_std": calibration.std,
-                "trifocal_distortion": calibration.lens_distortion,
-                "observable": calibration.observable,
-                "assumptions": calibration.assumptions,
-                "source": calibration.source,
-                "warning": calibration.warning(),
-                "refined": dict(zip(PARAMETER_NAMES, map(float, refined), strict=True)),
-                "difference": dict(
-                    zip(PARAMETER_NAMES, map(float, refined - estimate), strict=True)
-                ),
-                "relative_difference": float(np.mean(np.abs(refined / estimate - 1))),
-                # COLMAP's extra parameters (e.g. SIMPLE_RADIAL's k) after mapping and
-                # bundle adjustment, averaged over the group; [] for pinhole models.
-                "distortion": np.mean(
-                    [
-                        CameraInfo.from_pycolmap(reconstruction.cameras[c]).distortion
-                        for c in in_model
-                    ],
-                    axis=0,
-                ).tolist(),
-                "num_registered_images": sum(registered.get(c, 0) for c in ids),
-            }
-        )
-    return {
-        "method": options.method,
-        "mapper": options.mapper,
-        "refine": options.refine,
-        "num_images": reconstruction.num_images(),
-        "num_registered_images": reconstruction.num_reg_images(),
-        "num_points3D": reconstruction.num_points3D(),
-        "mean_reprojection_error_px": mean_reprojection_error(reconstruction),
-        "cameras": cameras,
-        "seconds": seconds,
-    }
