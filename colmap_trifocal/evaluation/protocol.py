@@ -249,7 +249,7 @@ def _pycolmap_baseline(task: RunTask, method: str, common: dict) -> RunRecord:
     """calibrate_view_graph or incremental mapping (refining f and pp) from the prior."""
     if task.sequence_database is None:
         raise ValueError("the pycolmap baselines need the sequence database")
-    start = time.perf_counter()
+    began = time.perf_counter()
     with tempfile.TemporaryDirectory() as folder:
         database = Path(folder) / "database.db"
         shutil.copyfile(task.sequence_database, database)
@@ -291,7 +291,7 @@ def _pycolmap_baseline(task: RunTask, method: str, common: dict) -> RunRecord:
         task.truth,
         task.prior,
         method=method,
-        seconds=time.perf_counter() - start,
+        seconds=time.perf_counter() - began,
         **common,
     )
 

@@ -37,7 +37,7 @@ from .parametrization import FULL, SINGLE_FOCAL
 from .polish import Polished, polish
 from .results import CameraCalibration
 from .selfcalibration import (
-    CalibrationProblem,
+    FallbackProblem,
     FallbackSolution,
     fold_focal_sign,
     solve_with_fallback,
@@ -188,7 +188,7 @@ def _calibrate_method(
                 tracks.by_images(),
                 start,
                 polished.intrinsics,
-                fallback.model,
+                fallback.free_parameters,
                 camera,
                 options.tau,
             )
@@ -273,7 +273,7 @@ def _solve(
     """The 15 constraints of ``tensors`` solved with ``method``; undetermined parameters
     tied (fy = fx) or held at the candidate's values (:func:`.solve_with_fallback`)."""
     camera = data.camera
-    problem = CalibrationProblem(
+    problem = FallbackProblem(
         tensors.tensors,
         method,
         tensors.start,
@@ -293,7 +293,7 @@ def _checked_estimate(best: Attempt, camera_id: int, method: str) -> np.ndarray:
     """
     fallback = best.fallback
     estimate = fold_focal_sign(theta_to_intrinsics(fallback.solution.theta, best.tensors.start))
-    checked = method != "direct" and fallback.model.dimension > 0
+    checked = method != "direct" and fallback.free_parameters.dimension > 0
     if not (
         np.all(np.isfinite(estimate)) and min(estimate[:2]) > 0 and (best.agreeing or not checked)
     ):
@@ -302,6 +302,8 @@ def _checked_estimate(best: Attempt, camera_id: int, method: str) -> np.ndarray:
             f"{estimate[1]:.4g}; {best.agreeing} of {len(best.tensors.tensors)} tensors agree): "
             "too little parallax or wrong matches"
         )
-    if fallback.model.assumptions():
-        logger.info("camera %d: assumed %s", camera_id, "; ".join(fallback.model.assumptions()))
+    if fallback.free_parameters.assumptions():
+        logger.info(
+            "camera %d: assumed %s", camera_id, "; ".join(fallback.free_parameters.assumptions())
+        )
     return estimate

@@ -39,7 +39,7 @@ from ..common.log import keep_colmap_quiet
 from ..database.cameras import CameraInfo
 from ..geometry.tensor_estimation import TripletTensor
 from .bundle_information import reduced_information
-from .parametrization import Model
+from .parametrization import FreeParameters
 from .triplet_bundle import (
     _one_step_jackknife_std,
     _shared_camera,
@@ -126,7 +126,7 @@ def estimate_distortion(
     tracks: dict[tuple[int, int, int], np.ndarray],
     start: np.ndarray,
     estimate: np.ndarray,
-    model: Model,
+    free_parameters: FreeParameters,
     camera: CameraInfo,
     tau: float,
 ) -> LensDistortion | None:
@@ -137,7 +137,7 @@ def estimate_distortion(
         tracks: per triplet (image ids), its tracks (3, n, 2), pixels.
         start: the tensors' normalisation (fx0, fy0, cx0, cy0), pixels.
         estimate: the estimate so far (fx, fy, cx, cy), pixels.
-        model: which of (fx, fy, cx, cy) are estimated (held ones stay).
+        free_parameters: which of (fx, fy, cx, cy) are estimated (held ones stay).
         camera: the stored camera (model, size, distortion).
         tau: the MSAC threshold; triplets with ``λ < τ²`` agree.
 
@@ -147,7 +147,7 @@ def estimate_distortion(
     camera_model = distortion_model(camera)
     if camera_model is None or not tensors:
         return None
-    setup = pycolmap_camera_setup(model)
+    setup = pycolmap_camera_setup(free_parameters)
     # Where pycolmap cannot hold what the solve held, every parameter is adjusted: the
     # result then only tests for distortion (``adjusts_held``).
     _, refine_focal, refine_principal_point = setup or ("", True, True)

@@ -187,7 +187,7 @@ def run_pipeline(
     database = workspace / "database.db"
     seconds: dict[str, float] = {}
 
-    start = time.perf_counter()
+    began = time.perf_counter()
     if options.database is not None:
         contents = read_database(options.database)  # validated (one-line errors), then copied
         copy_database(options.database, database)  # with what is still in its -wal
@@ -204,9 +204,9 @@ def run_pipeline(
             camera_mode=options.camera_mode,
         )
         contents = read_database(database)
-    seconds["features"] = time.perf_counter() - start
+    seconds["features"] = time.perf_counter() - began
 
-    start = time.perf_counter()
+    began = time.perf_counter()
     calibrations = calibrate_contents(
         contents,
         CalibrationOptions(
@@ -220,9 +220,9 @@ def run_pipeline(
     write_intrinsics(database, updated, backup=False)  # our own copy in the workspace
     if options.model is None:  # one camera per group while mapping (the copy only)
         merge_group_cameras(database, [list(c.camera_ids) for c in calibrations])
-    seconds["calibrate"] = time.perf_counter() - start
+    seconds["calibrate"] = time.perf_counter() - began
 
-    start = time.perf_counter()
+    began = time.perf_counter()
     mapping: dict[str, Any] = {}
     refine = refined_while_mapping(calibrations)
     if given_model is not None:
@@ -265,16 +265,16 @@ def run_pipeline(
         if retried:
             logger.info(retried)
             mapping["note"] = retried
-    seconds["mapping"] = time.perf_counter() - start
+    seconds["mapping"] = time.perf_counter() - began
 
-    start = time.perf_counter()
+    began = time.perf_counter()
     if options.refine == "ba":
         refined = "focal lengths, principal points" + (
             " and distortion" if refine["distortion"] else ""
         )
         _stage(f"bundle adjustment of {refined}", on_stage)
         refine_intrinsics(reconstruction, distortion=refine["distortion"])
-    seconds["refine"] = time.perf_counter() - start
+    seconds["refine"] = time.perf_counter() - began
 
     model_dir = workspace / "sparse" / "0"
     model_dir.mkdir(parents=True, exist_ok=True)
