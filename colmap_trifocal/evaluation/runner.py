@@ -28,7 +28,7 @@ def run_tasks(
     Locally: ``workers`` processes (default one per core), started with
     ``forkserver`` rather than forked: the tasks call pycolmap's multi-threaded
     code, which can deadlock or abort in a child forked from a process that has
-    already run it (measured: workers died and the pool hung). With
+    already run it (the workers die and the pool hangs). With
     ``dask_address`` (``tcp://host:8786``) the tasks go to that Dask scheduler; its
     workers need this package installed. ``function`` must be module-level.
     COLMAP's log level of this process is applied in every worker.

@@ -3,10 +3,9 @@
 Why. The whitened constraint residuals (:mod:`.selfcalibration`) measure a
 tensor's distance from the calibrated tensors of K to *first order* in the
 tensor's noise. For a triplet whose tracks lie close to one plane the projective
-tensor is poorly determined and that linearisation fails: on the synthetic facade
-at 1 % relief (``benchmarks/planar_facade.py``, seed 0) the whitened norm ‖r‖ at
-the true K is 27 and 73 for two triplets (χ(7) gives 1–4), while their
-likelihood-ratio statistic below is 2.6 and 2.3, as χ²(7) predicts. Such
+tensor is poorly determined and that linearisation fails: the whitened norm ‖r‖
+at the true K can be far beyond what χ(7) gives while the likelihood-ratio
+statistic below is as χ²(7) predicts (docs/planar_and_sequences.md). Such
 triplets are either left out as outliers or pull the estimate aside.
 
 What. For each tensor (cameras ``P2``, ``P3`` of its ML projective fit) and a
@@ -465,7 +464,7 @@ def polish_intrinsics(
     groups = [tensors[shared.triplets[p].index].image_ids for p in agreeing]
     jackknife_std = _one_step_jackknife_std(intrinsics, information, gradients, free, groups)
     # λ at the final K: exact for the adjusted triplets; the others keep their λ at
-    # the last round's start (they disagreed there, and K moved by a fraction of a std).
+    # the final round's start (they disagreed there, and K moved by a fraction of a std).
     after = shared.ratios()
     adjusted = set(agreeing)
     ratios = np.full(len(tensors), np.inf)

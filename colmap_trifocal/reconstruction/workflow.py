@@ -297,8 +297,9 @@ def refined_while_mapping(calibrations: list[CameraCalibration]) -> dict[str, bo
     """Which intrinsics mapping refines: those some camera's calibration did not determine,
     and the distortion of camera models that have it (also in the final bundle adjustment).
 
-    A held or weakly determined value baked into the model is what made ``run``
-    end 1.27 % off where mapping that refines it reached 0.17 % (issue 13).
+    A held or weakly determined value held fixed through mapping would stay as wrong
+    as the calibration left it; mapping that refines it ends far closer
+    (docs/hard_scenes.md).
     """
     focal = any(not (c.observable["fx"] and c.observable["fy"]) for c in calibrations)
     principal = any(not (c.observable["cx"] and c.observable["cy"]) for c in calibrations)
