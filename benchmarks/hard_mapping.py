@@ -89,7 +89,9 @@ def main() -> None:
         plain_seconds = time.perf_counter() - clock
 
         clock = time.perf_counter()
-        report = run_pipeline(None, work / "ws", RunOptions(database=database, seed=args.seed))
+        report = run_pipeline(
+            None, work / "ws", RunOptions(database=database, seed=args.seed)
+        ).to_json()
         run_seconds = time.perf_counter() - clock
         camera = report["cameras"][0]
         trifocal = np.array([camera["trifocal"][n] for n in NAMES])

@@ -86,7 +86,7 @@ def ours(
     options = RunOptions(database=database, mapper=mapper, seed=seed)
     start = time.perf_counter()
     with silenced_stderr():
-        report = run_pipeline(None, workspace, options)
+        report = run_pipeline(None, workspace, options).to_json()
     seconds = time.perf_counter() - start - report["seconds"]["features"]  # the copy
     stages = " + ".join(f"{report['seconds'][k]:.0f}" for k in ("calibrate", "mapping", "refine"))
     return pycolmap.Reconstruction(workspace / "sparse" / "0"), seconds, stages

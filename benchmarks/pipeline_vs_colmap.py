@@ -65,7 +65,9 @@ def main() -> None:
         truth = ground_truth_intrinsics(folder)
         with tempfile.TemporaryDirectory() as tmp:
             work = Path(tmp)
-            report = run_pipeline(folder / "images", work / "ours", RunOptions(database=database))
+            report = run_pipeline(
+                folder / "images", work / "ours", RunOptions(database=database)
+            ).to_json()
             plain, plain_seconds = plain_pycolmap(database, folder / "images", work)
         (camera,) = report["cameras"]
         ours = {

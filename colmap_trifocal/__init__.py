@@ -11,6 +11,11 @@ The public API mirrors the ``colmap-trifocal calibrate`` command::
 ``calibrate_reconstruction(reconstruction_or_folder)`` calibrates from a
 reconstruction's tracks instead, beside its own intrinsics (``result.reference``).
 
+Each result is a ``CameraCalibration``: one physical camera's estimate, for every
+camera id of its group (``result.camera_ids``; ``GroupCalibration`` is the same class);
+``calibrate_groups`` also returns the groups it skipped (``SkippedGroup``). Both have
+``to_json()``, the objects ``colmap-trifocal calibrate --json`` writes.
+
 Conventions used throughout: intrinsics are (fx, fy, cx, cy) in pixels with
 COLMAP's pixel convention (the centre of the top-left pixel is at (0.5, 0.5));
 K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]; tensor slices follow Hartley &

@@ -21,9 +21,11 @@ from colmap_trifocal.database.shared_cameras import merge_group_cameras
 from colmap_trifocal.database.snapshot import read_database
 from colmap_trifocal.intrinsics.calibrate import (
     CalibrationOptions,
+    calibrate_contents_methods,
     calibrate_database,
     calibrate_groups,
 )
+from colmap_trifocal.intrinsics.camera_calibration import calibrate_camera
 
 #: SIMPLE_RADIAL (f, cx, cy, k) of pycolmap's synthetic cameras.
 SIMPLE_RADIAL = [1280.0, 512.0, 384.0, 0.05]
@@ -190,6 +192,30 @@ def test_small_groups_are_skipped_while_others_calibrate(tmp_path: Path) -> None
         "num_images": 2,
         "skipped": "2 images",
     }
+
+
+def test_one_result_type_for_a_camera_and_its_group(tmp_path: Path) -> None:
+    """A camera's result names the camera ids it is for: its own id as the calibration
+    builds it, every id of the group once calibrate returns it (for each method), and
+    that is what it writes and reports."""
+    path = tmp_path / "database.db"
+    per_image_database(path)
+    contents = read_database(path)
+    options = CalibrationOptions(prior=PRIOR, workers=1)
+    (own,) = calibrate_camera(
+        contents, contents.cameras[1], sorted(contents.image_names), options, ("fundamental",)
+    ).values()
+    assert own.camera_ids == [1] and list(own.updated_cameras()) == [1]
+    assert own.to_json()["camera_ids"] == [1]
+    by_method = calibrate_contents_methods(contents, options, ("msac", "fundamental"))
+    for (result,) in by_method.values():
+        assert result.camera_ids == [1, 2, 3, 4, 5, 6] and result.camera_id == 1
+        assert sorted(result.updated_cameras()) == [1, 2, 3, 4, 5, 6]
+        data = result.to_json()
+        assert data["camera_ids"] == [1, 2, 3, 4, 5, 6] and data["start_source"] == "--prior"
+        assert not {"tensors", "stored_camera", "group_cameras"} & set(data)
+    msac, fundamental = (results[0] for results in by_method.values())
+    assert msac.camera_ids is not fundamental.camera_ids  # each result its own lists
 
 
 def test_cli_reports_skipped_group_in_json_and_on_stderr(

@@ -65,7 +65,7 @@ def test_plain_colmap_has_no_model_and_run_registers_the_drive(
     models = pycolmap.incremental_mapping(plain, tmp_path, tmp_path / "plain", options)
     assert max((m.num_reg_images() for m in models.values()), default=0) < NUM_IMAGES // 2
 
-    report = run_pipeline(None, tmp_path / "ws", RunOptions(database=database))
+    report = run_pipeline(None, tmp_path / "ws", RunOptions(database=database)).to_json()
     assert report["num_registered_images"] >= NUM_IMAGES - 1
     mapping = report["mapping"]
     first, *retries = mapping["attempts"]

@@ -31,7 +31,9 @@ def test_run_groups_per_image_cameras_and_maps(
 ) -> None:
     before = hashlib.sha256(default_database.read_bytes()).hexdigest()
     workspace = tmp_path / "ws"
-    report = run_pipeline(None, workspace, RunOptions(database=default_database, mapper=mapper))
+    report = run_pipeline(
+        None, workspace, RunOptions(database=default_database, mapper=mapper)
+    ).to_json()
     assert hashlib.sha256(default_database.read_bytes()).hexdigest() == before
     assert report["mapper"] == mapper
     assert report["num_registered_images"] == 8

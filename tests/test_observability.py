@@ -9,15 +9,15 @@ from colmap_trifocal.intrinsics.observability import (
     MAX_RELATIVE_STD,
     effective_std,
     relative_std,
-    select_model,
+    select_free_parameters,
     tolerance,
 )
 from colmap_trifocal.intrinsics.parametrization import (
     FULL,
     HELD,
     SINGLE_FOCAL,
-    Model,
-    candidate_models,
+    FreeParameters,
+    candidate_free_parameters,
 )
 from colmap_trifocal.intrinsics.selfcalibration import intrinsics_to_theta, theta_to_intrinsics
 from colmap_trifocal.intrinsics.uncertainty import (
@@ -37,37 +37,37 @@ def information_from_std(std: np.ndarray) -> np.ndarray:
     return np.diag(np.where(np.isfinite(std), 1.0 / np.asarray(std) ** 2, 0.0))
 
 
-@pytest.mark.parametrize("model", candidate_models(FULL))
-def test_parametrization_round_trip_and_held_values(model: Model) -> None:
-    parametrization = model.parametrization(START, PRIOR)
+@pytest.mark.parametrize("free_parameters", candidate_free_parameters(FULL))
+def test_parametrization_round_trip_and_held_values(free_parameters: FreeParameters) -> None:
+    parametrization = free_parameters.parametrization(START, PRIOR)
     rng = np.random.default_rng(0)
     free = rng.normal(0.0, 0.02, parametrization.dimension)
     theta = parametrization.theta(free)
     np.testing.assert_allclose(parametrization.free(theta), free, atol=1e-15)
     intrinsics = theta_to_intrinsics(theta, START)
-    if model.focal == "tied":
+    if free_parameters.focal == "tied":
         assert intrinsics[1] == pytest.approx(intrinsics[0], rel=1e-14)  # fy = fx in pixels
-    if model.focal == "held":
+    if free_parameters.focal == "held":
         np.testing.assert_allclose(intrinsics[:2], PRIOR[:2], rtol=1e-14)
-    for index, free_pp in ((2, model.cx), (3, model.cy)):
+    for index, free_pp in ((2, free_parameters.cx), (3, free_parameters.cy)):
         if not free_pp:
             assert intrinsics[index] == pytest.approx(PRIOR[index], rel=1e-14)
     # p = 0 is the start, with held parameters at the prior.
     start = theta_to_intrinsics(parametrization.theta(np.zeros(parametrization.dimension)), START)
     expected = START.copy()
-    if model.focal == "tied":
+    if free_parameters.focal == "tied":
         expected[1] = START[0]
-    if model.focal == "held":
+    if free_parameters.focal == "held":
         expected[:2] = PRIOR[:2]
-    expected[2:] = np.where([model.cx, model.cy], START[2:], PRIOR[2:])
+    expected[2:] = np.where([free_parameters.cx, free_parameters.cy], START[2:], PRIOR[2:])
     np.testing.assert_allclose(start, expected, rtol=1e-14)
 
 
-def test_candidate_models_are_submodels_largest_first() -> None:
-    models = candidate_models(FULL)
-    assert models[0] == FULL and models[-1] == HELD and len(models) == 12
-    assert [m.dimension for m in models] == sorted((m.dimension for m in models), reverse=True)
-    single = candidate_models(SINGLE_FOCAL)
+def test_candidate_free_parameters_are_subsets_largest_first() -> None:
+    subsets = candidate_free_parameters(FULL)
+    assert subsets[0] == FULL and subsets[-1] == HELD and len(subsets) == 12
+    assert [m.dimension for m in subsets] == sorted((m.dimension for m in subsets), reverse=True)
+    single = candidate_free_parameters(SINGLE_FOCAL)
     assert all(m.focal != "free" for m in single) and single[0] == SINGLE_FOCAL
     assert theta_to_intrinsics(intrinsics_to_theta(PRIOR, START), START) == pytest.approx(PRIOR)
 
@@ -91,10 +91,10 @@ def test_noise_free_null_direction_is_caught_by_the_eigenvalue_ratio() -> None:
 
 def test_undetermined_fy_is_tied_to_fx() -> None:
     information = information_from_std(np.array([0.001, 0.08, 0.001, 0.001]))
-    model = select_model(information, FULL, FULL, START, PRIOR, TOLERANCES)
-    assert model == Model("tied")
-    assert model.assumptions() == ["fy = fx"]
-    assert model.estimated(single_focal=False) == {
+    free_parameters = select_free_parameters(information, FULL, FULL, START, PRIOR, TOLERANCES)
+    assert free_parameters == FreeParameters("tied")
+    assert free_parameters.assumptions() == ["fy = fx"]
+    assert free_parameters.estimated(single_focal=False) == {
         "fx": True,
         "fy": False,
         "cx": True,
@@ -106,12 +106,14 @@ def test_weakly_determined_parameters_are_still_estimated() -> None:
     """Between 1 and 3 tolerances: estimated (not observable), never held at the prior."""
     weak_principal_point = 1.5 * TOLERANCES[2:]
     information = information_from_std(np.r_[0.001, 0.001, weak_principal_point])
-    assert select_model(information, FULL, FULL, START, PRIOR, TOLERANCES) == FULL
+    assert select_free_parameters(information, FULL, FULL, START, PRIOR, TOLERANCES) == FULL
     # A weak focal length pair is estimated as one focal length (square pixels), not held.
     information = information_from_std(np.array([0.015, 0.015, 0.001, 0.001]))
-    assert select_model(information, FULL, FULL, START, PRIOR, TOLERANCES) == Model("tied")
+    assert select_free_parameters(
+        information, FULL, FULL, START, PRIOR, TOLERANCES
+    ) == FreeParameters("tied")
     information = information_from_std(np.array([0.04, 0.04, 0.001, 0.001]))
-    assert select_model(information, FULL, FULL, START, PRIOR, TOLERANCES).focal != "free"
+    assert select_free_parameters(information, FULL, FULL, START, PRIOR, TOLERANCES).focal != "free"
 
 
 @pytest.mark.parametrize("weak_fy", [0.012, 0.026])
@@ -123,30 +125,32 @@ def test_fy_known_worse_than_the_aspect_ratio_is_tied(weak_fy: float) -> None:
     −2.7 % (tied to fx).
     """
     information = information_from_std(np.array([0.007, weak_fy, 0.001, 0.001]))
-    assert select_model(information, FULL, FULL, START, PRIOR, TOLERANCES) == Model("tied")
+    assert select_free_parameters(
+        information, FULL, FULL, START, PRIOR, TOLERANCES
+    ) == FreeParameters("tied")
     information = information_from_std(np.array([0.007, 0.009, 0.001, 0.001]))
-    assert select_model(information, FULL, FULL, START, PRIOR, TOLERANCES) == FULL
+    assert select_free_parameters(information, FULL, FULL, START, PRIOR, TOLERANCES) == FULL
 
 
 def test_nothing_determined_holds_everything() -> None:
     information = information_from_std(np.array([0.3, 0.2, 0.1, 0.1]))
-    model = select_model(information, FULL, FULL, START, PRIOR, TOLERANCES)
-    assert model == HELD
-    assert model.assumptions() == ["fx, fy held at the prior", "cx, cy held at the prior"]
+    free_parameters = select_free_parameters(information, FULL, FULL, START, PRIOR, TOLERANCES)
+    assert free_parameters == HELD
+    assert free_parameters.assumptions() == ["fx, fy held at the prior", "cx, cy held at the prior"]
 
 
-def test_all_determined_keeps_the_full_model() -> None:
+def test_all_determined_keeps_all_four_free() -> None:
     information = information_from_std(np.full(4, 0.2 * MAX_RELATIVE_STD))
-    assert select_model(information, FULL, FULL, START, PRIOR, TOLERANCES) == FULL
+    assert select_free_parameters(information, FULL, FULL, START, PRIOR, TOLERANCES) == FULL
 
 
 def test_principal_point_tolerance_is_relative_to_the_image_size() -> None:
     """cx std 2.0 % of f is 3.5 % of half the width: beyond 3 tolerances, held."""
     np.testing.assert_allclose(TOLERANCES, 0.01 * np.array([1, 1, 1536 / 2700, 1024 / 2750]))
     information = information_from_std(np.array([0.001, 0.001, 0.020, 0.001]))
-    model = select_model(information, FULL, FULL, START, PRIOR, TOLERANCES)
-    assert model == Model("free", cx=False, cy=True)
-    assert model.assumptions() == ["cx held at the prior"]
+    free_parameters = select_free_parameters(information, FULL, FULL, START, PRIOR, TOLERANCES)
+    assert free_parameters == FreeParameters("free", cx=False, cy=True)
+    assert free_parameters.assumptions() == ["cx held at the prior"]
 
 
 def test_parameter_coupled_to_a_held_one_is_held_too() -> None:
@@ -157,13 +161,13 @@ def test_parameter_coupled_to_a_held_one_is_held_too() -> None:
     """
     rows = np.array([[1.0, 0.0, 0.0, 1.0], [0.0, 0.0, 1.0, 0.0]]) * 1e4
     information = rows.T @ rows
-    held_focal = Model("held")
+    held_focal = FreeParameters("held")
     conditional = relative_std(information, held_focal.parametrization(START, PRIOR))
     assert conditional[3] < 1e-3
     effective = effective_std(information, held_focal, FULL, START, PRIOR)
     assert effective[3] > MAX_RELATIVE_STD and effective[2] < MAX_RELATIVE_STD
-    model = select_model(information, FULL, FULL, START, PRIOR, TOLERANCES)
-    assert model == Model("held", cx=True, cy=False)
+    free_parameters = select_free_parameters(information, FULL, FULL, START, PRIOR, TOLERANCES)
+    assert free_parameters == FreeParameters("held", cx=True, cy=False)
 
 
 def test_single_focal_camera_reports_fy_with_fx() -> None:

@@ -41,7 +41,7 @@ def test_run_estimates_the_distortion_and_the_intrinsics(
     barrel_lens_database: tuple[Path, np.ndarray], tmp_path: Path
 ) -> None:
     database, truth = barrel_lens_database
-    report = run_pipeline(None, tmp_path / "ws", RunOptions(database=database))
+    report = run_pipeline(None, tmp_path / "ws", RunOptions(database=database)).to_json()
     camera = report["cameras"][0]
     assert report["mapping"]["refined_while_mapping"]["distortion"]
     trifocal = np.array([camera["trifocal"][n] for n in ("fx", "fy", "cx", "cy")])

@@ -16,7 +16,7 @@ from colmap_trifocal.intrinsics.parametrization import SINGLE_FOCAL
 from colmap_trifocal.intrinsics.selfcalibration import (
     MSAC_TAU,
     ConstraintProblem,
-    SelfCalibrationResult,
+    ConstraintSolution,
     intrinsics_to_theta,
     msac_score,
     solve,
@@ -52,7 +52,7 @@ def scene_tensors(
     return scene.intrinsics, prior, triplet_tensors(scene, prior, rng)
 
 
-def relative_error(result: SelfCalibrationResult, truth: np.ndarray, prior: np.ndarray):
+def relative_error(result: ConstraintSolution, truth: np.ndarray, prior: np.ndarray):
     """|estimate / truth − 1| per parameter (fx, fy, cx, cy)."""
     return np.abs(theta_to_intrinsics(result.theta, prior) / truth - 1.0)
 

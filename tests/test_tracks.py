@@ -24,8 +24,8 @@ def test_tracks_need_a_consistent_three_cycle() -> None:
         (2, 3): np.array([[0, 0], [1, 2], [2, 1]]),  # keypoints 1 and 2 swapped
     }
     graph = MatchGraph(matches, {1: 3, 2: 3, 3: 3})
-    np.testing.assert_array_equal(graph.tracks(1, 2, 3), [[0, 0, 0]])
-    assert len(graph.tracks(1, 2, 4)) == 0  # no matches with image 4
+    np.testing.assert_array_equal(graph.track_indices(1, 2, 3), [[0, 0, 0]])
+    assert len(graph.track_indices(1, 2, 4)) == 0  # no matches with image 4
 
 
 def test_all_triplets_when_under_the_limit() -> None:

@@ -8,7 +8,7 @@ import pytest
 from colmap_trifocal import CalibrationOptions, calibrate_contents
 from colmap_trifocal.geometry.tensor_estimation import TripletTensor
 from colmap_trifocal.geometry.trifocal import normalize_tensor, tensor_from_cameras
-from colmap_trifocal.intrinsics.parametrization import FULL, SINGLE_FOCAL, Model
+from colmap_trifocal.intrinsics.parametrization import FULL, SINGLE_FOCAL, FreeParameters
 from colmap_trifocal.intrinsics.triplet_bundle import (
     calibrated_cameras,
     pycolmap_camera_setup,
@@ -62,18 +62,18 @@ def test_calibrated_cameras_recover_the_true_relative_poses():
 
 
 @pytest.mark.parametrize(
-    ("model", "expected"),
+    ("free_parameters", "expected"),
     [
         (FULL, ("PINHOLE", True, True)),
         (SINGLE_FOCAL, ("SIMPLE_PINHOLE", True, True)),
-        (Model("held"), ("PINHOLE", False, True)),
-        (Model("free", cx=False, cy=False), ("PINHOLE", True, False)),
-        (Model("free", cx=True, cy=False), None),
-        (Model("held", cx=False, cy=False), None),
+        (FreeParameters("held"), ("PINHOLE", False, True)),
+        (FreeParameters("free", cx=False, cy=False), ("PINHOLE", True, False)),
+        (FreeParameters("free", cx=True, cy=False), None),
+        (FreeParameters("held", cx=False, cy=False), None),
     ],
 )
-def test_camera_setup_follows_the_model(model, expected):
-    assert pycolmap_camera_setup(model) == expected
+def test_camera_setup_follows_the_free_parameters(free_parameters, expected):
+    assert pycolmap_camera_setup(free_parameters) == expected
 
 
 def _facade_run(triplet_bundle: bool):

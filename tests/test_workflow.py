@@ -34,7 +34,7 @@ def test_run_from_database(demo_database: tuple[Path, np.ndarray], tmp_path: Pat
     source, truth = demo_database
     before = _sha256(source)
     workspace = tmp_path / "ws"
-    report = run_pipeline(None, workspace, RunOptions(database=source))
+    report = run_pipeline(None, workspace, RunOptions(database=source)).to_json()
     assert _sha256(source) == before  # the user's database is copied, never changed
     assert report["num_registered_images"] == 8
     (camera,) = report["cameras"]
@@ -70,7 +70,9 @@ def test_refine_none_keeps_the_estimate(
     demo_database: tuple[Path, np.ndarray], tmp_path: Path
 ) -> None:
     source, _ = demo_database
-    report = run_pipeline(None, tmp_path / "ws", RunOptions(database=source, refine="none"))
+    report = run_pipeline(
+        None, tmp_path / "ws", RunOptions(database=source, refine="none")
+    ).to_json()
     (camera,) = report["cameras"]
     np.testing.assert_allclose(_intrinsics(camera["refined"]), _intrinsics(camera["trifocal"]))
 
@@ -87,7 +89,9 @@ def test_existing_model_gets_estimate_and_refinement(
     wrong = tmp_path / "wrong_model"
     wrong.mkdir()
     model.write(wrong)
-    report = run_pipeline(None, tmp_path / "second", RunOptions(database=source, model=wrong))
+    report = run_pipeline(
+        None, tmp_path / "second", RunOptions(database=source, model=wrong)
+    ).to_json()
     (camera,) = report["cameras"]
     assert np.mean(np.abs(_intrinsics(camera["refined"]) / truth - 1)) < 0.005
 

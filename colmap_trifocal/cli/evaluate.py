@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     )
     if min(options.image_counts) < 3:
         raise CalibrationError("--images: every sequence needs at least 3 images")
-    start = time.perf_counter()
+    began = time.perf_counter()
     scenes = scenes_at(args.kind, args.path)
     for scene in scenes:  # all checked before the first (long) evaluation
         if not Path(scene.image_dir).is_dir():
@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
             )
     records = [r for scene in scenes for r in evaluate_scene(scene, options)]
     finish(records, args, "evaluation", f"{args.kind}: {args.runs} runs")
-    print(f"{len(records)} results in {time.perf_counter() - start:.0f} s")
+    print(f"{len(records)} results in {time.perf_counter() - began:.0f} s")
     return 0
 
 

@@ -31,8 +31,9 @@ def one_line(text: str) -> str:
 
 
 def warn(message: str) -> None:
-    """A ``warning: ...`` line on stderr (a result the user should look at)."""
-    print(f"warning: {message}", file=sys.stderr)
+    """A ``warning: ...`` line on stderr (a result the user should look at); control
+    characters escaped, so that it stays one line."""
+    print(one_line(f"warning: {message}"), file=sys.stderr)
 
 
 @contextlib.contextmanager

@@ -105,7 +105,9 @@ def run(args: argparse.Namespace) -> int:
         check_output_file(args.png, "--png")
         outputs.append(Output("--png", args.png))
     refuse_outputs_over_inputs(outputs, run_inputs(images, options))
-    report = run_pipeline(images, args.workspace, options, _announce if progress else None)
+    report = run_pipeline(
+        images, args.workspace, options, _announce if progress else None
+    ).to_json()
     note = report["mapping"].get("note")  # the mapping's retries
     if note is not None:
         print(note, file=sys.stderr)

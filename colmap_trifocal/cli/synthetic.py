@@ -53,11 +53,11 @@ def run(args: argparse.Namespace) -> int:
         for noise in noise_levels
         for run in range(args.runs)
     ]
-    start = time.perf_counter()
+    began = time.perf_counter()
     results = run_tasks(
         run_synthetic_task, tasks, args.workers, args.dask, "synthetic runs", sys.stderr.isatty()
     )
     records = [r for rs in results for r in rs]
     finish(records, args, "synthetic", f"synthetic: {args.points} points, {args.runs} runs")
-    print(f"{len(records)} results in {time.perf_counter() - start:.0f} s")
+    print(f"{len(records)} results in {time.perf_counter() - began:.0f} s")
     return 0

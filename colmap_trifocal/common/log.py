@@ -16,10 +16,10 @@ logger.addHandler(logging.NullHandler())
 def keep_colmap_quiet() -> Iterator[None]:
     """Keep COLMAP's log level across a call that resets it.
 
-    Measured with pycolmap 4.2: ``pycolmap.bundle_adjustment`` sets glog's
-    ``minloglevel`` to 0 and prints two INFO lines even when the level was 2. When
-    COLMAP is quiet, stderr (file descriptor 2, where glog writes) is silenced for
-    the call and the level restored afterwards.
+    ``pycolmap.bundle_adjustment`` (pycolmap 4.2) sets glog's ``minloglevel`` to 0
+    and prints INFO lines whatever the level is. When COLMAP is quiet, stderr (file
+    descriptor 2, where glog writes) is silenced for the call and the level
+    restored afterwards.
     """
     level = pycolmap.logging.minloglevel
     if level < 1:

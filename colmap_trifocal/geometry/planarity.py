@@ -3,9 +3,8 @@
 When most tracks of a triplet lie on one plane (a facade), the 7-point tensors
 of the MSAC pool fit the plane and a few off-plane points, and the projective
 bundle adjustment started from them ends in a local minimum or along a flat
-valley far from any calibrated tensor (measured on a synthetic facade with 1 %
-relief: final costs 5–70 % above the cost reached from the true cameras, tensor
-0.6–1.1 away from the true one in unit Frobenius norm).
+valley far from any calibrated tensor, at a cost above the one reached from the
+true cameras (docs/planar_and_sequences.md).
 
 Plane + parallax gives another start (with a dominant plane and a few discrete
 relief layers, such as a door, its epipoles are poorly determined, so it is one

@@ -11,11 +11,11 @@
    * minimal linear tensors (7 tracks each, all solved in one batched SVD);
    * one hypothesis from the prior intrinsics: the essential matrix of views 1-2
      (5-point RANSAC) and the pose of view 3 by PnP RANSAC on the triangulated
-     tracks. Measured on fountain-P11: when most tracks lie on one plane, linear
-     7-point samples are degenerate and about half the selected tensors were
-     wrong (constraints no smaller at the true K than at the prior); neither the
-     5-point solver nor PnP is degenerate for planes, so this hypothesis wins
-     there, and the projective refinement removes the prior's bias.
+     tracks. When most tracks lie on one plane, linear 7-point samples are
+     degenerate and many of the tensors they give are wrong (constraints no
+     smaller at the true K than at the prior); neither the 5-point solver nor PnP
+     is degenerate for planes, so this hypothesis wins there, and the projective
+     refinement removes the prior's bias.
 3. The best hypothesis is refined: its inliers (at most ``max_refined_tracks`` of
    them, a seeded random subset) by three-view
    projective bundle adjustment (:mod:`.projective_ba`), inliers re-selected with
@@ -72,17 +72,17 @@ class TensorEstimationOptions:
     max_refined_tracks: int = 500
     #: A triplet is planar-dominant when this share of its tracks fits one plane's
     #: homographies (:mod:`.planarity`; e.g. ``PLANAR_SHARE`` = 0.5); it then gets a
-    #: plane + parallax start as well. Off by default (above 1): measured before the
-    #: two converged starts (docs/planar_and_sequences.md), it made more facade
-    #: triplets agree but not the estimate more accurate, and cost Herz-Jesus-P8
-    #: accuracy.
+    #: plane + parallax start as well. Off by default (above 1): besides the two
+    #: converged starts it makes more facade triplets agree but not the estimate
+    #: more accurate (docs/planar_and_sequences.md).
     planar_share: float = 2.0
     #: Refine the calibrated hypothesis (prior K, 5-point + PnP) as a second start
     #: besides the best MSAC hypothesis (always done for planar-dominant triplets).
     calibrated_start: bool = True
     #: Every start is refined on with this BA stopping rule (relative cost decrease,
     #: iterations at most) and the lowest MSAC score wins; a tolerance at or above
-    #: ``BA_TOLERANCE`` (1e-4) skips it (the estimate before issue 13, item 2).
+    #: ``BA_TOLERANCE`` (1e-4) skips it: each start then keeps its refinement at
+    #: ``BA_TOLERANCE``, which can stop along a facade's flat valley.
     final_ba_tolerance: float = 1e-9
     final_ba_iterations: int = 200
 

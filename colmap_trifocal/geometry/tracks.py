@@ -3,6 +3,9 @@
 A track of the triplet (i, j, k) is a keypoint of image i matched to a keypoint
 of j and one of k, where the verified matches of (j, k) also link those two
 keypoints: the 3-cycle check removes most mismatches before any tensor is fit.
+"Tracks" are pixel coordinates (3, n, 2) (:func:`triplet_points`); the keypoint
+indices (n, 3) they come from are a triplet's ``keypoint_indices``
+(:meth:`MatchGraph.track_indices`).
 
 Selection, bounded for large databases (:func:`select_triplets`):
 
@@ -21,7 +24,7 @@ Selection, bounded for large databases (:func:`select_triplets`):
 Sequences (video, driving; :func:`is_sequence`): adjacent frames share most
 tracks but barely rotate, and a triplet of them says little about K. There the
 candidates are all triangles among each frame's (up to 50) matched neighbours, and they are
-ranked and spread by :func:`information_score`, ``sqrt(tracks) · motion``, with
+ranked and spread by :func:`information_score`, ``sqrt(num_tracks) · motion``, with
 ``motion`` the smallest of the three pairs' median keypoint displacements
 (:func:`pair_motions`): triplets over wider frame gaps and across turns win, as
 long as they keep enough tracks.
@@ -64,9 +67,8 @@ PLANE_THRESHOLD_PX = 3.0
 #: Percentile of the tracks' distances from that plane that :func:`plane_parallax` reports.
 PARALLAX_PERCENTILE = 75.0
 #: Tracks (evenly spaced) and RANSAC iterations :func:`plane_parallax` uses per pair.
-#: The ranking of candidate triplets follows the parallax closely: with 100
-#: iterations, or 150 tracks, the 11° turntable (seed 2) and the 10° ring picked
-#: weaker triplets (docs/accuracy.md).
+#: The ranking of candidate triplets follows the parallax closely, so fewer of
+#: either pick weaker triplets on narrow scenes (docs/accuracy.md).
 PARALLAX_MAX_TRACKS = 300
 PARALLAX_RANSAC_ITERATIONS = 500
 
@@ -117,7 +119,7 @@ class MatchGraph:
             self._tables[(a, b)] = table
         return table
 
-    def tracks(self, i: int, j: int, k: int) -> np.ndarray:
+    def track_indices(self, i: int, j: int, k: int) -> np.ndarray:
         """Keypoint indices (n, 3) of the 3-cycle-consistent tracks of (i, j, k)."""
         ij, ik, jk = self._lookup(i, j), self._lookup(i, k), self._lookup(j, k)
         if ij is None or ik is None or jk is None:
@@ -180,12 +182,13 @@ def pair_motions(
 
 
 def information_score(
-    triple: tuple[int, int, int], tracks: int, motions: dict[Pair, float]
+    triple: tuple[int, int, int], num_tracks: int, motions: dict[Pair, float]
 ) -> float:
-    """``sqrt(tracks) · min(motion of the three pairs)``: many tracks, and all views apart."""
+    """``sqrt(num_tracks) · min(motion of the three pairs)`` (pixels): many tracks,
+    and all views apart."""
     i, j, k = triple
     motion = min(motions.get(p, 0.0) for p in ((i, j), (i, k), (j, k)))
-    return float(np.sqrt(tracks) * motion)
+    return float(np.sqrt(num_tracks) * motion)
 
 
 def select_sequence_triplets(
@@ -216,7 +219,7 @@ def select_sequence_triplets(
     chosen = sorted(set(order[:batch].tolist()) | set(best_of_image.values()))
     evaluated = []
     for index in chosen:
-        indices = graph.tracks(*ids[index])
+        indices = graph.track_indices(*ids[index])
         if len(indices) >= min_tracks:
             evaluated.append(Triplet(ids[index], indices))
     weights = np.array(
@@ -280,7 +283,7 @@ def select_triplets(
     """
     if max_triplets is None:
         ids, _ = candidate_triplets(graph, image_ids, None)
-        triplets = [Triplet(t, graph.tracks(*t)) for t in ids]
+        triplets = [Triplet(t, graph.track_indices(*t)) for t in ids]
         triplets = [t for t in triplets if len(t.keypoint_indices) >= min_tracks]
         return sorted(triplets, key=lambda t: -len(t.keypoint_indices))
     ids, bounds = candidate_triplets(graph, image_ids, neighbours_per_image)
@@ -299,7 +302,7 @@ def select_triplets(
     for position, index in enumerate(chain(priority, rest)):
         if position >= len(priority) and len(evaluated) >= batch:
             break
-        indices = graph.tracks(*ids[index])
+        indices = graph.track_indices(*ids[index])
         if len(indices) >= min_tracks:
             evaluated.append(Triplet(ids[index], indices))
     evaluated.sort(key=lambda t: -len(t.keypoint_indices))
@@ -356,45 +359,43 @@ def plane_parallax(points: np.ndarray) -> float:
     return parallax
 
 
-def parallax_score(tracks: int, parallax_px: float) -> float:
-    """``tracks · parallax`` (pixels): the weight of a candidate triplet in the spread.
+def parallax_score(num_tracks: int, parallax_px: float) -> float:
+    """``num_tracks · parallax`` (pixels): the weight of a candidate triplet in the spread.
 
     A facade triplet says about K what its tracks' parallax off the plane says
     (:func:`plane_parallax`), and that parallax grows with the baseline, so wide
-    triplets with fewer tracks beat narrow ones with many. Measured
-    (docs/planar_and_sequences.md): on a 1 %-relief facade the estimate's std
-    falls by about half and its error to 0.04–0.07 %; on Strecha fountain-P11 and
-    Herz-Jesus-P8 the error falls on average (0.19 -> 0.15 %, 0.13 -> 0.11 %).
+    triplets with fewer tracks beat narrow ones with many (what it gains:
+    docs/planar_and_sequences.md).
     """
-    return float(tracks * parallax_px)
+    return float(num_tracks * parallax_px)
 
 
 def spread_triplets(
     candidates: list[Triplet], count: int, weights: list[float] | None = None
 ) -> list[Triplet]:
-    """Greedily pick ``count`` triplets, each maximising ``tracks / (1 + uses)``.
+    """Greedily pick ``count`` triplets, each maximising ``num_tracks / (1 + uses)``.
 
     ``weights`` (one per candidate) replace the track counts when given.
 
     ``uses`` is how often the triplet's three images already appear among the
-    picked ones. Ranking by tracks alone piles the triplets onto a few images
-    (measured: when all triplets of an 8-image sequence have equal track counts,
-    the top 20 all contain image 1), so their errors share those images' keypoints
-    and an image jackknife cannot drop any of them; the discount spreads them over
-    the view graph while still preferring well-matched triplets. The first pick is
-    the triplet with most tracks. Ties go to the earlier candidate.
+    picked ones. Ranking by tracks alone piles the triplets onto a few images (with
+    equal track counts, the first candidates all share one image), so their errors
+    share those images' keypoints and an image jackknife cannot drop any of them;
+    the discount spreads them over the view graph while still preferring
+    well-matched triplets. The first pick is the triplet with most tracks. Ties go
+    to the earlier candidate.
     """
     images = sorted({i for t in candidates for i in t.image_ids})
     column = {image: index for index, image in enumerate(images)}
     members = np.array([[column[i] for i in t.image_ids] for t in candidates])
-    tracks = np.array(
+    merit = np.array(
         [len(t.keypoint_indices) for t in candidates] if weights is None else weights, dtype=float
     )
     uses = np.zeros(len(images))
     available = np.ones(len(candidates), dtype=bool)
     chosen = []
     for _ in range(min(count, len(candidates))):
-        score = np.where(available, tracks / (1.0 + uses[members].sum(axis=1)), -np.inf)
+        score = np.where(available, merit / (1.0 + uses[members].sum(axis=1)), -np.inf)
         best = int(np.argmax(score))
         chosen.append(candidates[best])
         available[best] = False

@@ -16,12 +16,12 @@ from .camera_input import CameraInput
 from .diagnosis import diagnose
 from .focal_search import FocalSearchResult
 from .lens_distortion import LensDistortion
-from .parametrization import Model
+from .parametrization import FreeParameters
 from .polish import Polished
 from .results import PARAMETER_NAMES, CameraCalibration, TripletReport, finite_or_none
 from .selfcalibration import (
+    ConstraintSolution,
     FallbackSolution,
-    SelfCalibrationResult,
     fold_focal_sign,
     theta_to_intrinsics,
 )
@@ -52,19 +52,19 @@ def assess(
         lens: the distortion the triplets show (:mod:`.lens_distortion`), None when
             it was not estimated.
     """
-    camera, model = data.camera, fallback.model
+    camera, free_parameters = data.camera, fallback.free_parameters
     focal_scale = np.array([start[0], start[1], start[0], start[1]])
     estimate, relative_std, distortion, lens_note = with_lens(
         polished.intrinsics, polished.relative_std, lens, camera.model, focal_scale
     )
-    estimated = model.estimated(camera.single_focal)
+    estimated = free_parameters.estimated(camera.single_focal)
     within = (relative_std < fallback.tolerances) & fallback.moved
     observable = {
         name: estimated[name] and bool(ok) for name, ok in zip(PARAMETER_NAMES, within, strict=True)
     }
     std = relative_std * focal_scale
     unconstrained = fallback.unconstrained.relative_std * focal_scale
-    source = parameter_sources(estimated, model, candidate.held_source)
+    source = parameter_sources(estimated, free_parameters, candidate.held_source)
     reported_std = {
         name: finite_or_none(s) if estimated[name] else None
         for name, s in zip(PARAMETER_NAMES, std, strict=True)
@@ -93,7 +93,7 @@ def assess(
             note.replace("the prior", _SOURCE_WORDS[candidate.held_source], 1)
             if note.startswith("fx, fy")
             else note
-            for note in model.assumptions()
+            for note in free_parameters.assumptions()
         ],
         estimated=estimated,
         source=source,
@@ -113,7 +113,9 @@ def assess(
     )
 
 
-def parameter_sources(estimated: dict[str, bool], model: Model, held_source: str) -> dict[str, str]:
+def parameter_sources(
+    estimated: dict[str, bool], free_parameters: FreeParameters, held_source: str
+) -> dict[str, str]:
     """Where each reported value comes from: ``trifocal`` (estimated from the
     constraints), ``tied`` (fy = fx, square pixels assumed), ``focal-search`` or
     ``prior`` (held)."""
@@ -121,7 +123,7 @@ def parameter_sources(estimated: dict[str, bool], model: Model, held_source: str
     for name in PARAMETER_NAMES:
         if estimated[name]:
             source[name] = "trifocal"
-        elif name == "fy" and model.focal == "tied":
+        elif name == "fy" and free_parameters.focal == "tied":
             source[name] = "tied"
         elif name in ("fx", "fy"):
             source[name] = held_source
@@ -143,7 +145,7 @@ def search_summary(search: FocalSearchResult | None) -> dict | None:
 
 
 def triplet_reports(
-    tensors: list[TripletTensor], solution: SelfCalibrationResult, start: np.ndarray
+    tensors: list[TripletTensor], solution: ConstraintSolution, start: np.ndarray
 ) -> list[TripletReport]:
     """Per-tensor diagnostics of a solve (candidates and scores for msac / msac-opt)."""
     reports = []

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import pycolmap
@@ -40,8 +41,7 @@ from ..database.from_reconstruction import (
 from ..database.snapshot import DatabaseContents, read_database
 from ..database.writing import write_intrinsics
 from .camera_calibration import calibrate_camera
-from .group_results import GroupCalibration, SkippedGroup
-from .options import (  # noqa: F401  (re-exported: the public API)
+from .options import (
     METHODS,
     CalibrationOptions,
     check_options,
@@ -49,12 +49,34 @@ from .options import (  # noqa: F401  (re-exported: the public API)
     parse_prior,
     start_source,
 )
-from .results import CameraCalibration
+from .results import CameraCalibration, GroupCalibration, SkippedGroup
+
+#: The public API (``colmap_trifocal.__all__``) and the names the command line takes from here.
+__all__ = [
+    "METHODS",
+    "CalibrationOptions",
+    "CameraCalibration",
+    "GroupCalibration",
+    "SkippedGroup",
+    "add_read_seconds",
+    "calibrate_contents",
+    "calibrate_contents_methods",
+    "calibrate_database",
+    "calibrate_groups",
+    "calibrate_reconstruction",
+    "check_options",
+    "default_guess",
+    "parse_prior",
+    "plan_groups",
+    "read_contents",
+    "updated_cameras",
+    "write_calibrations",
+]
 
 
 def calibrate_database(
     path: Path | str, options: CalibrationOptions | None = None
-) -> list[GroupCalibration]:
+) -> list[CameraCalibration]:
     """Estimate the intrinsics of the cameras of a COLMAP database.
 
     Args:
@@ -80,7 +102,7 @@ def calibrate_database(
 def calibrate_reconstruction(
     reconstruction: pycolmap.Reconstruction | Path | str,
     options: CalibrationOptions | None = None,
-) -> list[GroupCalibration]:
+) -> list[CameraCalibration]:
     """Estimate the intrinsics of a COLMAP reconstruction's cameras from its tracks.
 
     Two observations of one 3D point in two registered images are a match; the 3D
@@ -169,9 +191,7 @@ def updated_cameras(
     """
     updated: dict[int, CameraInfo] = {}
     for r in results:
-        if determined_only and not r.determined_anything:
-            continue
-        if isinstance(r, GroupCalibration) or r.stored_camera is not None:
+        if not determined_only or r.determined_anything:
             updated.update(r.updated_cameras())
     return updated
 
@@ -199,20 +219,20 @@ def write_calibrations(path: Path | str, results: Sequence[CameraCalibration]) -
 
 def calibrate_contents(
     contents: DatabaseContents, options: CalibrationOptions
-) -> list[GroupCalibration]:
+) -> list[CameraCalibration]:
     """Calibrate the cameras of already-read database contents (see :func:`calibrate_database`)."""
     return calibrate_contents_methods(contents, options, (options.method,))[options.method]
 
 
 def calibrate_contents_methods(
     contents: DatabaseContents, options: CalibrationOptions, methods: tuple[str, ...]
-) -> dict[str, list[GroupCalibration]]:
+) -> dict[str, list[CameraCalibration]]:
     """Several methods on the same contents; the trifocal variants share one set of tensors.
 
     Each result's ``seconds`` is what that method alone would take (the shared
     focal search and tensors plus its own solve). ``options.method`` is ignored.
-    Results are :class:`.group_results.GroupCalibration` (one per calibrated group);
-    skipped groups are only logged here (see :func:`calibrate_groups`).
+    One result per calibrated group; skipped groups are only logged here (see
+    :func:`calibrate_groups`).
     """
     return calibrate_groups(contents, options, methods)[0]
 
@@ -273,7 +293,7 @@ def calibrate_groups(
     options: CalibrationOptions,
     methods: tuple[str, ...],
     grouping: Mapping[int, CameraInfo] | None = None,
-) -> tuple[dict[str, list[GroupCalibration]], list[SkippedGroup]]:
+) -> tuple[dict[str, list[CameraCalibration]], list[SkippedGroup]]:
     """Calibrate every group with each of ``methods``; also return the skipped groups.
 
     ``grouping``: see :func:`plan_groups`.
@@ -286,7 +306,7 @@ def calibrate_groups(
     if unknown:
         raise CalibrationError(f"unknown method {unknown[0]!r} (choose from {METHODS})")
     groups, skipped = plan_groups(contents, options, grouping)
-    results: dict[str, list[GroupCalibration]] = {m: [] for m in methods}
+    results: dict[str, list[CameraCalibration]] = {m: [] for m in methods}
     first_error: CalibrationError | None = None
     for group in groups:
         cameras = [contents.cameras[c] for c in group.camera_ids]
@@ -308,7 +328,14 @@ def calibrate_groups(
             continue
         source = start_source(cameras[0], options)
         for method, result in per_method.items():
-            results[method].append(GroupCalibration.of(result, cameras, source))
+            results[method].append(
+                replace(
+                    result,
+                    camera_ids=[c.camera_id for c in cameras],
+                    start_source=source,
+                    group_cameras=list(cameras),
+                )
+            )
     if not results[methods[0]] and first_error is not None:
         raise first_error
     for skip in skipped:

@@ -33,11 +33,11 @@ from .fundamental import calibrate_fundamental
 from .lens_distortion import estimate_distortion
 from .observability import tolerance
 from .options import CalibrationOptions
-from .parametrization import FULL, HELD, SINGLE_FOCAL, Model
+from .parametrization import FULL, HELD, SINGLE_FOCAL, FreeParameters
 from .polish import Polished, polish
 from .results import CameraCalibration
 from .selfcalibration import (
-    CalibrationProblem,
+    FallbackProblem,
     FallbackSolution,
     fold_focal_sign,
     solve_with_fallback,
@@ -204,7 +204,7 @@ def _calibrate_method(
                 tracks.by_images(),
                 start,
                 polished.intrinsics,
-                fallback.model,
+                fallback.free_parameters,
                 camera,
                 options.tau,
             )
@@ -285,13 +285,13 @@ def _solve(
     data: CameraInput,
     method: str,
     options: CalibrationOptions,
-    base: Model | None = None,
+    base: FreeParameters | None = None,
 ) -> FallbackSolution:
     """The 15 constraints of ``tensors`` solved with ``method`` for the parameters of
     ``base`` (default: the camera model's); undetermined parameters tied (fy = fx) or
     held at the candidate's values (:func:`.solve_with_fallback`)."""
     camera = data.camera
-    problem = CalibrationProblem(
+    problem = FallbackProblem(
         tensors.tensors,
         method,
         tensors.start,
@@ -314,7 +314,7 @@ def _nothing_agrees(attempt: Attempt, method: str) -> bool:
     total = len(attempt.fallback.solution.inlier_tensors)
     return (
         method != "direct"
-        and attempt.fallback.model.dimension > 0
+        and attempt.fallback.free_parameters.dimension > 0
         and attempt.agreeing < min(MIN_AGREEING, total)
     )
 
@@ -324,7 +324,7 @@ def _checked_estimate(best: Attempt, camera_id: int, method: str) -> np.ndarray:
     (not finite, a focal length ≤ 0 that tensors agree with)."""
     fallback = best.fallback
     estimate = fold_focal_sign(theta_to_intrinsics(fallback.solution.theta, best.tensors.start))
-    checked = method != "direct" and fallback.model.dimension > 0
+    checked = method != "direct" and fallback.free_parameters.dimension > 0
     if not (
         np.all(np.isfinite(estimate)) and min(estimate[:2]) > 0 and (best.agreeing or not checked)
     ):
@@ -333,6 +333,8 @@ def _checked_estimate(best: Attempt, camera_id: int, method: str) -> np.ndarray:
             f"{estimate[1]:.4g}; {best.agreeing} of {len(best.tensors.tensors)} tensors agree): "
             "too little parallax or wrong matches"
         )
-    if fallback.model.assumptions():
-        logger.info("camera %d: assumed %s", camera_id, "; ".join(fallback.model.assumptions()))
+    if fallback.free_parameters.assumptions():
+        logger.info(
+            "camera %d: assumed %s", camera_id, "; ".join(fallback.free_parameters.assumptions())
+        )
     return estimate

@@ -3,12 +3,11 @@
 Why. Tensors are estimated in coordinates normalised by a starting K, and on
 near-planar triplets the hypothesis that wins MSAC is the calibrated one (the
 5-point essential matrix and PnP, :func:`.tensor_estimation.calibrated_hypothesis`),
-which needs a roughly right K. Measured on fountain-P11 from COLMAP's default
-camera (f = 1.2 · max(width, height), 33 % too long there): that hypothesis
+which needs a roughly right K. From a focal length far off (COLMAP's default
+camera, f = 1.2 · max(width, height), can be a third too long) that hypothesis
 fails, the linear 7-point ones win, and the bundle adjustment ends in
-plane-dominated local minima on half the triplets (3126 instead of 3986 inliers
-on the best one), so only 10 of 30 tensors were MSAC inliers and the tensor
-stage took 4× longer.
+plane-dominated local minima: fewer inlier tracks, few tensors that agree, and a
+slower tensor stage (docs/accuracy.md, "Why these constants").
 
 How. The fit of the calibrated hypothesis is sharply best at the true focal
 length. With square pixels and the starting principal point, the cost of a
@@ -17,10 +16,9 @@ error of its calibrated hypothesis (pixels², on a random subset of its tracks),
 summed over the first selected triplets. Coarse to fine: a grid over fields of
 view of 5°–150° (21 candidates 25 % apart, half the tracks; a 10° telephoto is
 4.8× COLMAP's default guess, a 100° lens 0.35×), then 9 candidates over one
-coarse step either side of its minimum, refined by a parabola in log f.
-Measured on both Strecha scenes from the default camera (former 0.5–2× grid):
-focal length within 1–4 % of the truth, enough for the tensor stage to behave
-as from a ±5 % prior.
+coarse step either side of its minimum, refined by a parabola in log f. The
+result is within a few percent of the truth, enough for the tensor stage to
+behave as from a ±5 % prior.
 
 Evidence, not a guess. The result replaces the start only when the tracks
 clearly favour it (:attr:`FocalSearchResult.improves_on_start`); it carries a
@@ -55,23 +53,22 @@ FINE_STEPS = 9
 COARSE_ITERATIONS = (30, 30)
 #: ... and on the fine grid and at the start.
 FINE_ITERATIONS = (100, 1000)
-#: Without an image size: candidates relative to the start (the former 0.5–2× grid).
+#: Without an image size: candidates relative to the start, 0.5–2× its focal length.
 SEARCH_FACTORS = np.geomspace(0.5, 2.0, 13)
 #: The cost curve is decisive when its minimum is interior and the cost one coarse
-#: step either side is at least this many times the minimum. Measured: 2.5–40 on
-#: general motion and on the lens scenes, 1.0–1.3 on straight forward motion,
-#: whose calibrated hypotheses fit almost equally well at any focal length.
+#: step either side is at least this many times the minimum: far above on general
+#: motion, about 1 on straight forward motion, whose calibrated hypotheses fit
+#: almost equally well at any focal length.
 DECISIVE_CONTRAST = 1.5
 #: Floor of the focal search's relative std: the calibrated hypotheses use the
-#: start's principal point and square pixels, which biases the minimum (measured
-#: 1–4 % on the Strecha scenes from the default camera).
+#: start's principal point and square pixels, which biases the minimum by a few
+#: percent.
 MIN_RELATIVE_STD = 0.02
 #: The search's focal length replaces the start's when the start costs at least
-#: this many times more and the curve is decisive (:attr:`FocalSearchResult.improves_on_start`).
-#: Measured on straight forward motion the cost curve is
-#: flat (ratio 1.00–1.1 between any two candidates), so a prior is kept there;
-#: from COLMAP's default camera on the lens scenes (4.8× and 0.35× off) the
-#: ratio is 3 or more.
+#: this many times more and the curve is decisive
+#: (:attr:`FocalSearchResult.improves_on_start`). On straight forward motion the
+#: cost curve is flat, so a prior is kept there; a start far off costs several
+#: times more.
 ADOPT_RATIO = 1.2
 #: ... and without a decisive curve, when the start costs this many times more.
 CLEAR_RATIO = 1.5

@@ -57,21 +57,12 @@ essentially ignored. With 0.5–2 px noise on well-spread views the correct pair
 ``c`` ≈ 0.001–0.02, while on real data (distortion, short baselines) it can be larger, hence
 0.02 rather than the slightly better synthetic optimum 0.01.
 
-Measured with ``tests/test_fundamental.py``'s generator (7 cameras, 21 pairs, ±5 % prior,
-20 % of the F's replaced by random rank-2 matrices; mean relative error of fx, fy, cx, cy,
-averaged over 30 scenes, 0.5 px noise, 300 points per pair):
-
-* no robust loss: 40 % (normalised form ``(σ1−σ2)/(σ1+σ2)``: 33 %);
-* ``soft_l1``: 17 % (f_scale 0.01) to 24 % (0.1) — its influence never decays, so the
-  wrong pairs still drag K away;
-* ``huber``: 16–22 %;
-* ``cauchy``: 0.13 % (f_scale 0.01), 0.25 % (0.02), 1.6 % (0.05), 6 % (0.1).
-
-Without wrong F's all variants give 0.11 %. At 2 px noise and 30 points per pair (100 scenes)
-cauchy 0.02 was the best of 0.005/0.01/0.02/0.05 (1.8 % vs 2.1/1.8/2.8 % with 20 % wrong
-F's; 1.6 % vs 2.0/1.7/1.6 % without). The ratio and normalised cost forms behave the same
-once ``f_scale`` is halved for the latter (``(σ1−σ2)/(σ1+σ2) ≈ c/2`` near the solution), so
-the original Mendonça–Cipolla ratio is kept.
+Why Cauchy: its influence decays for large residuals, so wrong F's stop pulling K;
+``soft_l1`` and ``huber`` keep a constant influence and the wrong pairs still drag K
+away. The ratio and the normalised form ``(σ1−σ2)/(σ1+σ2)`` behave the same once
+``f_scale`` is halved for the latter (``(σ1−σ2)/(σ1+σ2) ≈ c/2`` near the solution), so
+the Mendonça–Cipolla ratio is used. The errors of each loss and scale:
+docs/accuracy.md, "Why these constants".
 """
 
 from __future__ import annotations

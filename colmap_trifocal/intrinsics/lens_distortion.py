@@ -39,7 +39,7 @@ from ..common.log import keep_colmap_quiet
 from ..database.cameras import CameraInfo
 from ..geometry.tensor_estimation import TripletTensor
 from .bundle_information import reduced_information
-from .parametrization import Model
+from .parametrization import FreeParameters
 from .triplet_bundle import (
     _one_step_jackknife_std,
     _shared_camera,
@@ -123,7 +123,7 @@ def estimate_distortion(
     tracks: dict[tuple[int, int, int], np.ndarray],
     start: np.ndarray,
     estimate: np.ndarray,
-    model: Model,
+    free_parameters: FreeParameters,
     camera: CameraInfo,
     tau: float,
 ) -> LensDistortion | None:
@@ -134,7 +134,7 @@ def estimate_distortion(
         tracks: per triplet (image ids), its tracks (3, n, 2), pixels.
         start: the tensors' normalisation (fx0, fy0, cx0, cy0), pixels.
         estimate: the estimate so far (fx, fy, cx, cy), pixels.
-        model: which of (fx, fy, cx, cy) are estimated (held ones stay).
+        free_parameters: which of (fx, fy, cx, cy) are estimated (held ones stay).
         camera: the stored camera (model, size, distortion).
         tau: the MSAC threshold; triplets with ``λ < τ²`` agree.
 
@@ -145,7 +145,7 @@ def estimate_distortion(
     camera_model = distortion_model(camera)
     if camera_model is None or not tensors:
         return None
-    setup = pycolmap_camera_setup(model)
+    setup = pycolmap_camera_setup(free_parameters)
     if setup is None:
         return None
     _, refine_focal, refine_principal_point = setup
@@ -274,9 +274,7 @@ def _jackknife_std(
     for position in agreeing:
         triplet = shared.triplets[position]
         poses, points = shared.poses_and_points(triplet)
-        parts.append(
-            reduced_information(fitted.intrinsics, poses, points, triplet.pixels, radial)
-        )
+        parts.append(reduced_information(fitted.intrinsics, poses, points, triplet.pixels, radial))
     q = 4 + len(radial)
     columns = [np.r_[1.0, 1.0, np.zeros(q - 2)]]  # the single focal length
     if refine_principal_point:

@@ -13,7 +13,7 @@ The test is the information about θ (the relative corrections of
 :mod:`.selfcalibration`) at the estimate: the curvature of the whitened
 constraints combined with an image jackknife (:mod:`.uncertainty`), with
 directions the raw constraints do not see at all removed (exact degeneracy,
-where whitening by a tiny noise would hide it). For a :class:`.Model`
+where whitening by a tiny noise would hide it). For a :class:`.FreeParameters`
 (``θ = A p + b``) the covariance is ``(Aᵀ H A)⁻¹``; directions whose information
 is below ``MIN_EIGENVALUE_RATIO`` of the strongest count as null.
 
@@ -23,31 +23,28 @@ image size for cx and cy. Below 1 tolerance it is *observable*; up to
 ``FALLBACK_FACTOR`` (3) tolerances it is still estimated (jointly with the rest,
 so it biases nothing) but reported as weakly determined; beyond that it is tied
 (``fy = fx``) or held at the prior, whichever leaves the others determined
-(:func:`select_model`). fx and fy are estimated apart only while both stds are
-within the aspect ratio's own uncertainty (``TIED_ASPECT_STD``); a focal length
-known worse than that is tied: square pixels are then the better evidence
-(:func:`square_pixels_not_better`; on the shared KITTI drive, planar motion with
-some pitch, fy went from −5.4 % estimated with a 19 px std to −2.7 % tied).
-
-Measured on synthetic 8-image sequences (0.5 px noise, ±5 % prior, 20 triplets),
-std relative to the focal length: general motion 0.01–0.02 % for every
-parameter; an orbit at constant height and forward driving with ±3° yaw: fy
-5–12 %, the others 0.01–1 %, and the unconstrained fy estimate 45–60 % off;
-pure translation 4–35 % for all four. A single triplet (the paper's synthetic
-experiment) at 1 px noise: up to 1.2 % for the focal length.
+(:func:`select_free_parameters`). fx and fy are estimated apart only while both
+stds are within the aspect ratio's own uncertainty (``TIED_ASPECT_STD``); a focal
+length known worse than that is tied: square pixels are then the better evidence
+(:func:`square_pixels_not_better`).
 
 A tie or hold is judged with its own uncertainty counted (:func:`effective_std`):
 an estimated parameter coupled to a held one would otherwise absorb the held
-value's error unseen. Measured: on forward motion without yaw, cy estimated
-with the focal length held 5 % off came out 6–10 % off while its conditional
-std said 0.7 % of f.
+value's error unseen, with a conditional std far smaller than its error. The stds
+these motions give, and the figures behind the constants: docs/uncertainty.md.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .parametrization import HELD, PARAMETER_NAMES, Model, Parametrization, candidate_models
+from .parametrization import (
+    HELD,
+    PARAMETER_NAMES,
+    FreeParameters,
+    Parametrization,
+    candidate_free_parameters,
+)
 
 #: A parameter is observable when its std is below this fraction of its scale (the
 #: focal length for fx, fy; half the image width / height for cx, cy).
@@ -58,7 +55,7 @@ FALLBACK_FACTOR = 3.0
 MIN_EIGENVALUE_RATIO = 1e-8
 #: How well held values are known, relative to the focal length, when judging what
 #: the estimated parameters inherit from them: a focal length prior is often 30 %
-#: off (COLMAP's default guess is 33 % off on fountain-P11), a principal point
+#: off (COLMAP's default, 1.2 · max(width, height), is a guess), a principal point
 #: prior (the image centre) rarely more than 10 % of the focal length.
 HELD_FOCAL_STD = 0.30
 HELD_PRINCIPAL_POINT_STD = 0.10
@@ -111,9 +108,13 @@ def default_held_std() -> np.ndarray:
 
 
 def constraint_information(
-    model: Model, base: Model, start: np.ndarray, held_std: np.ndarray | None = None
+    free_parameters: FreeParameters,
+    base: FreeParameters,
+    start: np.ndarray,
+    held_std: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Information P (4, 4) about θ of the ties and holds ``model`` adds to ``base``.
+    """Information P (4, 4) about θ of the ties and holds ``free_parameters`` adds to
+    ``base``.
 
     A held value is known to ``held_std`` (θ units: relative to the focal length;
     default :func:`default_held_std`, ``HELD_FOCAL_STD`` for a focal length and
@@ -124,14 +125,17 @@ def constraint_information(
     held_std = default_held_std() if held_std is None else np.asarray(held_std, float)
     information = np.zeros((4, 4))
     unit = np.eye(4)
-    if model.focal == "held" and base.focal != "held":
+    if free_parameters.focal == "held" and base.focal != "held":
         for index in (0, 1):
             information += np.outer(unit[index], unit[index]) / held_std[index] ** 2
-    elif model.focal == "tied" and base.focal == "free":
+    elif free_parameters.focal == "tied" and base.focal == "free":
         aspect = start[1] / start[0]
         gradient = aspect * np.array([-1.0, 1.0, 0.0, 0.0])
         information += np.outer(gradient, gradient) / TIED_ASPECT_STD**2
-    for index, kept, base_kept in ((2, model.cx, base.cx), (3, model.cy, base.cy)):
+    for index, kept, base_kept in (
+        (2, free_parameters.cx, base.cx),
+        (3, free_parameters.cy, base.cy),
+    ):
         if base_kept and not kept:
             information += np.outer(unit[index], unit[index]) / held_std[index] ** 2
     return information
@@ -139,19 +143,20 @@ def constraint_information(
 
 def effective_std(
     information: np.ndarray,
-    model: Model,
-    base: Model,
+    free_parameters: FreeParameters,
+    base: FreeParameters,
     start: np.ndarray,
     held: np.ndarray,
     held_std: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Std (4,) of θ under ``model``, its ties and holds counted as uncertain, not exact.
+    """Std (4,) of θ under ``free_parameters``, its ties and holds counted as
+    uncertain, not exact.
 
-    ``(H + P)⁻¹`` over the base model's unknowns, P from :func:`constraint_information`:
+    ``(H + P)⁻¹`` over ``base``'s unknowns, P from :func:`constraint_information`:
     an estimated parameter coupled to a held one inherits the held value's
     uncertainty instead of hiding it (estimating cy with fx held 5 % off, say).
     """
-    constrained = information + constraint_information(model, base, start, held_std)
+    constrained = information + constraint_information(free_parameters, base, start, held_std)
     return relative_std(constrained, base.parametrization(start, held))
 
 
@@ -167,48 +172,51 @@ def tolerance(start: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 def worst_estimated_std(
-    std: np.ndarray, tolerances: np.ndarray, model: Model, single_focal: bool
+    std: np.ndarray, tolerances: np.ndarray, free_parameters: FreeParameters, single_focal: bool
 ) -> float:
-    """Largest ``std / tolerance`` among the parameters ``model`` estimates (0 if none)."""
-    estimated = model.estimated(single_focal)
+    """Largest ``std / tolerance`` among the parameters ``free_parameters`` estimates
+    (0 if none)."""
+    estimated = free_parameters.estimated(single_focal)
     ratios = np.asarray(std) / tolerances
     values = [r for r, name in zip(ratios, PARAMETER_NAMES, strict=True) if estimated[name]]
     return float(max(values, default=0.0))
 
 
-def square_pixels_not_better(std: np.ndarray, model: Model, base: Model) -> bool:
+def square_pixels_not_better(
+    std: np.ndarray, free_parameters: FreeParameters, base: FreeParameters
+) -> bool:
     """Whether estimating fx and fy apart beats assuming square pixels.
 
     A focal length the triplets know less well than the aspect ratio is known
     (``TIED_ASPECT_STD``) is better tied: ``fy = fx`` is then the stronger
     evidence, and an fy estimated from the little the motion says about it
     (planar motion with some pitch, e.g. a car's) would be further off than the
-    tie. True for models without a free focal pair.
+    tie. True when ``free_parameters`` or ``base`` has no free focal pair.
 
     Args:
-        std: (4,) std of θ under ``model`` (relative to the focal length).
+        std: (4,) std of θ under ``free_parameters`` (relative to the focal length).
     """
-    if model.focal != "free" or base.focal != "free":
+    if free_parameters.focal != "free" or base.focal != "free":
         return True
     return bool(np.all(np.asarray(std)[:2] <= TIED_ASPECT_STD))
 
 
-def select_model(
+def select_free_parameters(
     information: np.ndarray,
-    current: Model,
-    base: Model,
+    current: FreeParameters,
+    base: FreeParameters,
     start: np.ndarray,
     held: np.ndarray,
     tolerances: np.ndarray,
     held_std: np.ndarray | None = None,
-) -> Model:
-    """The largest model within ``current`` whose parameters are all within
+) -> FreeParameters:
+    """The largest subset of ``current`` whose parameters are all within
     ``FALLBACK_FACTOR`` tolerances (a free fx, fy pair: within the aspect ratio's
     own uncertainty, :func:`square_pixels_not_better`).
 
     Args:
         information: H (4, 4) about θ at the current estimate, over ``base``'s unknowns.
-        current: the model solved last (the search only removes parameters).
+        current: the parameters solved for last (the search only removes parameters).
         base: the most the camera model allows (all four, or one focal length).
         start: (fx0, fy0, cx0, cy0) the tensors were normalised with, pixels.
         held: values that held parameters keep (the prior), pixels.
@@ -220,14 +228,14 @@ def select_model(
         :data:`.parametrization.HELD`: everything held at the prior).
     """
     single_focal = base.focal == "tied"
-    best: tuple[int, float, Model] | None = None
-    for model in candidate_models(current):
-        if best is not None and model.dimension < best[0]:
+    best: tuple[int, float, FreeParameters] | None = None
+    for candidate in candidate_free_parameters(current):
+        if best is not None and candidate.dimension < best[0]:
             break
-        std = effective_std(information, model, base, start, held, held_std)
-        worst = worst_estimated_std(std, tolerances, model, single_focal)
-        if worst >= FALLBACK_FACTOR or not square_pixels_not_better(std, model, base):
+        std = effective_std(information, candidate, base, start, held, held_std)
+        worst = worst_estimated_std(std, tolerances, candidate, single_focal)
+        if worst >= FALLBACK_FACTOR or not square_pixels_not_better(std, candidate, base):
             continue
         if best is None or worst < best[1]:
-            best = (model.dimension, worst, model)
+            best = (candidate.dimension, worst, candidate)
     return HELD if best is None else best[2]

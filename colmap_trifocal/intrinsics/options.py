@@ -28,10 +28,10 @@ from .selfcalibration import (
 METHODS = ("msac-opt", "msac", "direct", "fundamental")
 
 
-#: See ``CalibrationOptions.restart``. Tensors normalised by a start whose principal
-#: point is 10 % of f off (a 28 % prior on fountain-P11's cy) were half outliers
-#: (10 of 20 MSAC inliers), which left cy undetermined; the unconstrained estimate
-#: was still within 0.5 %, and re-estimating from it restored 19–20 inliers.
+#: See ``CalibrationOptions.restart``: an estimate this far (relative) from the start
+#: has its tensors estimated again from it. Tensors normalised by a start whose
+#: principal point is far off turn into outliers and leave it undetermined, while
+#: the unconstrained estimate is already close (docs/accuracy.md).
 RESTART_THRESHOLD = 0.05
 
 
@@ -53,10 +53,8 @@ class CalibrationOptions:
     group: str = "auto"
     seed: int = 0
     #: Triplets used per camera, spread over the view graph (:mod:`.tracks`); None:
-    #: every triplet with enough tracks. Measured on the Strecha scenes (±5 % priors,
-    #: 10 seeds): 20 triplets are as accurate as 30 (fountain 0.152 vs 0.153 %,
-    #: Herz-Jesus 0.122 vs 0.150 %) and 30 % faster; see also
-    #: ``benchmarks/triplet_sampling.py``.
+    #: every triplet with enough tracks. More cost time without making the estimate
+    #: better (docs/accuracy.md, ``benchmarks/triplet_sampling.py``).
     max_triplets: int | None = 20
     min_tracks: int = 40
     #: Choose triplets for a sequence (video, driving): over wider frame gaps and

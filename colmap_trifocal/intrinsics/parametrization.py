@@ -10,8 +10,8 @@ parameter is always estimated:
   translation, see :mod:`.observability`), it is *tied* (``fy = fx``, square
   pixels) or *held* at the prior rather than estimated from noise.
 
-A :class:`Model` names the estimated parameters; its :class:`Parametrization`
-is the affine map ``θ = A p + b`` from the free unknowns ``p`` (k of them,
+A :class:`FreeParameters` names the estimated parameters; its
+:class:`Parametrization` is the affine map ``θ = A p + b`` from the free unknowns ``p`` (k of them,
 0 ≤ k ≤ 4) to θ. Columns of ``A`` are unit vectors for free parameters and
 ``(1, r, 0, 0)`` for a tied focal length (``r = fx0 / fy0``, so that
 ``fy = fx``); ``b`` holds the held parameters' θ and the tie's offset ``r − 1``.
@@ -31,8 +31,9 @@ FocalMode = Literal["free", "tied", "held"]
 
 
 @dataclass(frozen=True)
-class Model:
-    """The parameters a solve estimates.
+class FreeParameters:
+    """Which of (fx, fy, cx, cy) a solve estimates; the others are tied (``fy = fx``)
+    or held at given values.
 
     Attributes:
         focal: ``"free"``: fx and fy; ``"tied"``: one focal length, ``fy = fx``;
@@ -49,8 +50,8 @@ class Model:
         """Number of free unknowns k."""
         return {"free": 2, "tied": 1, "held": 0}[self.focal] + int(self.cx) + int(self.cy)
 
-    def includes(self, other: Model) -> bool:
-        """Whether ``other`` estimates a subset of what this model estimates."""
+    def includes(self, other: FreeParameters) -> bool:
+        """Whether ``other`` estimates a subset of what these estimate."""
         order = {"free": 2, "tied": 1, "held": 0}
         return (
             order[other.focal] <= order[self.focal]
@@ -88,7 +89,7 @@ class Model:
         return Parametrization(matrix, offset)
 
     def assumptions(self) -> list[str]:
-        """What this model assumes instead of estimating, e.g. ``["fy = fx"]``."""
+        """What is assumed instead of estimated, e.g. ``["fy = fx"]``."""
         notes = []
         if self.focal == "tied":
             notes.append("fy = fx")
@@ -100,10 +101,10 @@ class Model:
         return notes
 
     def estimated(self, single_focal: bool) -> dict[str, bool]:
-        """Per parameter: determined by the data under this model.
+        """Per parameter: determined by the data when these are estimated.
 
         A tied fy counts as estimated only for single-focal camera models, where
-        ``fy = fx`` is the model itself rather than an assumption.
+        ``fy = fx`` is the camera model itself rather than an assumption.
         """
         focal_free = self.focal == "free" or (self.focal == "tied" and single_focal)
         return {
@@ -114,19 +115,21 @@ class Model:
         }
 
 
-#: The base model of cameras with two focal lengths, and of single-focal ones.
-FULL = Model("free")
-SINGLE_FOCAL = Model("tied")
-HELD = Model("held", cx=False, cy=False)
+#: What cameras with two focal lengths, and single-focal ones, can estimate at most.
+FULL = FreeParameters("free")
+SINGLE_FOCAL = FreeParameters("tied")
+#: Nothing estimated: everything held.
+HELD = FreeParameters("held", cx=False, cy=False)
 
 
-def candidate_models(base: Model) -> list[Model]:
-    """Every model that estimates a subset of ``base``, largest first (base included)."""
+def candidate_free_parameters(base: FreeParameters) -> list[FreeParameters]:
+    """Every subset of ``base``, largest first (base included)."""
     focals: tuple[FocalMode, ...] = ("free", "tied", "held")
-    models = [
-        Model(focal, cx, cy) for focal, cx, cy in product(focals, (True, False), (True, False))
+    subsets = [
+        FreeParameters(focal, cx, cy)
+        for focal, cx, cy in product(focals, (True, False), (True, False))
     ]
-    return sorted((m for m in models if base.includes(m)), key=lambda m: -m.dimension)
+    return sorted((m for m in subsets if base.includes(m)), key=lambda m: -m.dimension)
 
 
 @dataclass(frozen=True)
@@ -145,7 +148,8 @@ class Parametrization:
         return free @ self.matrix.T + self.offset
 
     def free(self, theta: np.ndarray) -> np.ndarray:
-        """The p (..., k) whose θ is closest to ``theta`` (..., 4) (exact on the model)."""
+        """The p (..., k) whose θ is closest to ``theta`` (..., 4) (exact where θ is
+        reachable: tied and held parameters at their values)."""
         pseudo_inverse = np.linalg.pinv(self.matrix) if self.dimension else np.zeros((0, 4))
         return (theta - self.offset) @ pseudo_inverse.T
 

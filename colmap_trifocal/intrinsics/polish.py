@@ -93,14 +93,14 @@ def polish(
         tensors: the solve's tensors, normalised by ``start`` (pixels).
         tracks: per triplet (image ids), its tracks (3, n, 2), pixels.
         estimate: the constraint estimate (fx, fy, cx, cy), pixels.
-        fallback: the constraint solve (model, std, jackknife).
+        fallback: the constraint solve (free parameters, std, jackknife).
         agreeing: tensors that agree with ``estimate``.
         size: (width, height) of the images, pixels.
         tau: the MSAC threshold.
     """
     unchanged = Polished(estimate, fallback.relative_std, agreeing, None)
-    model = fallback.model
-    if pycolmap_camera_setup(model) is None:
+    free_parameters = fallback.free_parameters
+    if pycolmap_camera_setup(free_parameters) is None:
         return unchanged
     focal_scale = np.array([start[0], start[1], start[0], start[1]])
     constraints = dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True))
@@ -109,7 +109,7 @@ def polish(
         logger.info("camera %d: bundle adjustment of the triplets not run: %s", camera_id, skip)
         not_run = {"used": False, "agreeing": None, "constraints": constraints, "rejected": skip}
         return Polished(estimate, fallback.relative_std, agreeing, not_run)
-    result = polish_intrinsics(tensors, tracks, start, estimate, model, size, tau)
+    result = polish_intrinsics(tensors, tracks, start, estimate, free_parameters, size, tau)
     summary: dict[str, object] = {
         "used": False,
         "agreeing": None if result is None else int(result.agreeing.sum()),
@@ -143,7 +143,7 @@ def not_worth_it(
     """Why the polish cannot be kept, judged before it runs (see the module), or None."""
     if fallback.solution.jackknife is None or not np.all(fallback.solution.inlier_tensors):
         return None
-    predicted = predicted_jackknife_std(tensors, tracks, start, estimate, fallback.model)
+    predicted = predicted_jackknife_std(tensors, tracks, start, estimate, fallback.free_parameters)
     if predicted is None:
         return None
     polish_variance, constraint_variance = _variances(predicted, focal_scale, fallback)
@@ -160,7 +160,7 @@ def _variances(
 ) -> tuple[float, float]:
     """Summed variances of the estimated parameters, relative to the focal length: the
     polish's (from its std in pixels) and the constraint solve's jackknife."""
-    estimated = fallback.model.parametrization(np.ones(4), np.ones(4)).matrix.any(axis=1)
+    estimated = fallback.free_parameters.parametrization(np.ones(4), np.ones(4)).matrix.any(axis=1)
     assert fallback.solution.jackknife is not None
     constraint = np.diag(jackknife_covariance(fallback.solution.jackknife))
     return (

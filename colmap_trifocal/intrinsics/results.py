@@ -1,5 +1,11 @@
 """What ``calibrate`` returns per camera, and its JSON form (DESIGN.md contract).
 
+A camera is a physical camera: the camera ids of one group
+(:mod:`..database.camera_groups`; COLMAP's default gives one id per image) share its
+intrinsics. :class:`CameraCalibration` is its estimate, for every one of those ids;
+:class:`SkippedGroup` a camera that was not calibrated, and why. Both have a
+``to_json()``: the objects of the list ``calibrate --json`` writes.
+
 Units: intrinsics and their standard deviations in pixels (COLMAP's pixel
 convention, the centre of the top-left pixel at (0.5, 0.5)).
 """
@@ -9,6 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 import pycolmap
@@ -18,10 +25,21 @@ from ..database.cameras import CameraInfo
 from ..geometry.tensor_estimation import TripletTensor
 from .parametrization import PARAMETER_NAMES
 
-__all__ = ["PARAMETER_NAMES", "CameraCalibration", "TripletReport", "apply_cameras"]
+__all__ = [
+    "PARAMETER_NAMES",
+    "START_SOURCES",
+    "CameraCalibration",
+    "GroupCalibration",
+    "SkippedGroup",
+    "TripletReport",
+    "apply_cameras",
+]
 
 #: What :func:`.diagnosis.diagnose` says when the tracks show no known cause.
 NO_CAUSE = "no degenerate motion found"
+
+#: ``start_source`` values: where the starting intrinsics came from.
+START_SOURCES = ("--prior", "default guess", "EXIF focal length", "stored camera")
 
 
 @dataclass
@@ -52,11 +70,14 @@ class TripletReport:
 
 @dataclass
 class CameraCalibration:
-    """The estimate for one camera, as written by ``calibrate --json``.
+    """The estimate for one camera, for every camera id of its group, as written by
+    ``calibrate --json``: the camera's final result, after the constraint solve
+    (:class:`.selfcalibration.FallbackSolution`), the polish and the assessment.
 
-    ``observable`` is True where the std is below 1 % of the parameter's scale
-    (the focal length; half the image size for the principal point, see
-    :mod:`.observability`). Other parameters are either still estimated (weakly
+    ``camera_id`` is the group's first id and ``camera_ids`` all of them (sorted);
+    ``model`` is the COLMAP camera model. ``observable`` is True where the std is
+    below 1 % of the parameter's scale (the focal length; half the image size for the
+    principal point, see :mod:`.observability`). Other parameters are either still estimated (weakly
     determined, std up to 3 tolerances), tied (``std`` None) or held at the best
     evidence, the start or a decisive focal search, with that evidence's std
     (``source``, ``assumptions``). ``unconstrained_std`` is each parameter's std when all of
@@ -89,19 +110,19 @@ class CameraCalibration:
     source: dict[str, str] = field(default_factory=dict)
     #: The focal search's result: focal length and std (pixels), whether its cost
     #: curve was decisive and whether it replaced the prior's focal length.
-    focal_search: dict | None = None
+    focal_search: dict[str, Any] | None = None
     #: The cause of undetermined parameters the data shows (:mod:`.diagnosis`), or None.
     diagnosis: str | None = None
     #: msac-opt's bundle adjustment of the agreeing triplets (:mod:`.triplet_bundle`):
     #: ``used`` (it replaced the constraint estimate), ``agreeing`` triplets (λ < τ²;
     #: None when it failed) and the constraint estimate it started from
     #: (``constraints``: fx, fy, cx, cy in pixels). None when it did not run.
-    triplet_bundle: dict | None = None
+    triplet_bundle: dict[str, Any] | None = None
     #: The lens distortion the triplets' calibrated bundle adjustment found
     #: (:mod:`.lens_distortion`): ``present``, ``params`` and ``std`` (COLMAP's order
     #: of the model's extra parameters), the likelihood-ratio ``statistic`` and its
     #: ``threshold``. None when the stored distortion was taken as it is.
-    lens_distortion: dict | None = None
+    lens_distortion: dict[str, Any] | None = None
     #: The distortion parameters to store with the estimate (COLMAP's order), None to
     #: keep the stored ones.
     distortion: list[float] | None = None
@@ -114,11 +135,27 @@ class CameraCalibration:
     #: bounded by :data:`.tensor_set.MAX_STARTS_PER_TRIPLET` per triplet).
     tensor_starts: int = 0
     tensors: list[TripletTensor] = field(default_factory=list, repr=False)
-    #: The camera as stored in the database (model, size, distortion), for writing.
+    #: The camera as stored in the database (model, size, distortion) whose prior and
+    #: model the calibration used: the group's first.
     stored_camera: CameraInfo | None = field(default=None, repr=False)
     #: (fx, fy, cx, cy) the calibrated reconstruction itself holds (its bundle-adjusted
     #: intrinsics; the mean over the group's camera ids), pixels; None for a database.
     reference: tuple[float, float, float, float] | None = None
+    #: Every camera id the estimate is for (sorted; ``camera_id`` is the first);
+    #: ``[camera_id]`` unless given.
+    camera_ids: list[int] = field(default_factory=list)
+    #: Where the prior came from (one of :data:`START_SOURCES`); with ``EXIF focal
+    #: length`` the focal search still checks it.
+    start_source: str = "stored camera"
+    #: The group's cameras as stored, for writing (each keeps its own distortion);
+    #: ``[stored_camera]`` unless given.
+    group_cameras: list[CameraInfo] = field(default_factory=list, repr=False)
+
+    def __post_init__(self) -> None:
+        if not self.camera_ids:
+            self.camera_ids = [self.camera_id]
+        if not self.group_cameras and self.stored_camera is not None:
+            self.group_cameras = [self.stored_camera]
 
     @property
     def intrinsics(self) -> np.ndarray:
@@ -145,11 +182,11 @@ class CameraCalibration:
             camera = camera.with_distortion(self.distortion)
         return camera
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         """The JSON object of DESIGN.md (plus prior, start, assumptions, triplets)."""
         data = asdict(self)
-        data.pop("tensors")
-        data.pop("stored_camera")
+        for unwritten in ("tensors", "stored_camera", "group_cameras"):
+            data.pop(unwritten)
         data["prior"] = dict(zip(PARAMETER_NAMES, self.prior, strict=True))
         data["start"] = dict(zip(PARAMETER_NAMES, self.start, strict=True))
         if self.reference is not None:
@@ -157,14 +194,15 @@ class CameraCalibration:
         return data
 
     def updated_cameras(self) -> dict[int, CameraInfo]:
-        """camera_id -> the stored camera with the estimate (:meth:`written_camera`).
+        """camera_id -> the stored camera with the estimate (:meth:`written_camera`), for
+        every camera of the group.
 
         The one place where (fx, fy, cx, cy) become a camera model's params is
         :meth:`.CameraInfo.with_intrinsics` (single-focal models: f = (fx + fy) / 2).
         """
-        if self.stored_camera is None:
+        if not self.group_cameras:
             raise CalibrationError(f"camera {self.camera_id}: the result has no stored camera")
-        return {self.camera_id: self.written_camera(self.stored_camera)}
+        return {c.camera_id: self.written_camera(c) for c in self.group_cameras}
 
     @property
     def camera(self) -> pycolmap.Camera:
@@ -258,6 +296,39 @@ class CameraCalibration:
             if not fixed and self.diagnosis and self.diagnosis != NO_CAUSE:
                 parts[-1] += f" ({self.diagnosis})"
         return f"camera {self.camera_id}: " + "; ".join(parts)
+
+
+#: The name of :class:`CameraCalibration` where it is a group's result (the same type).
+GroupCalibration = CameraCalibration
+
+
+@dataclass
+class SkippedGroup:
+    """A camera (a group of camera ids) that was not calibrated, and why (e.g. ``"2 images"``)."""
+
+    camera_ids: list[int]
+    num_images: int
+    reason: str
+
+    @property
+    def camera_id(self) -> int:
+        """The group's first camera id."""
+        return self.camera_ids[0]
+
+    def to_json(self) -> dict[str, Any]:
+        """``{"camera_id", "camera_ids", "num_images", "skipped"}``."""
+        return {
+            "camera_id": self.camera_id,
+            "camera_ids": list(self.camera_ids),
+            "num_images": self.num_images,
+            "skipped": self.reason,
+        }
+
+    def message(self) -> str:
+        """One line for stderr."""
+        ids = self.camera_ids
+        who = f"camera {ids[0]}" if len(ids) == 1 else f"camera group {ids[0]} ({len(ids)} ids)"
+        return f"{who} skipped: {self.reason}"
 
 
 def apply_cameras(

@@ -17,10 +17,15 @@ covariance of the refined cameras (:mod:`.projective_ba`):
 ``Σ_c = J Σ_P Jᵀ`` with ``J = ∂c/∂vec(P2, P3)`` (central differences). Σ_c has
 rank 7, the codimension of calibrated tensors among all tensors, and the
 whitened residual ``r = Λ^{-1/2} Vᵀ c`` (its top 7 eigenpairs) is, at the true K,
-approximately a standard normal 7-vector: ``‖r‖²`` ~ χ²(7). Measured on the
-Strecha scenes (SIFT at 1600 px) the median ‖r‖ at the ground-truth K is a few
-units, while the raw constraint norms spread over two orders of magnitude; see
-``MSAC_TAU`` for the threshold.
+approximately a standard normal 7-vector: ``‖r‖²`` ~ χ²(7), so one threshold
+(``MSAC_TAU``) serves every triplet (docs/uncertainty.md, "Why these constants").
+
+The levels: a :class:`ConstraintProblem` (one set of tensors, one parametrization)
+has a :class:`ConstraintSolution` per solve (:func:`solve`); a camera's
+:class:`FallbackProblem` (its tensors, method, start and held values) is solved by
+:func:`solve_with_fallback` into a :class:`FallbackSolution` (the parameters the
+images determine), which the polish and the assessment turn into the camera's
+:class:`.results.CameraCalibration`.
 
 Variants (TrifocalCalib paper):
 
@@ -54,16 +59,15 @@ from .observability import (
     default_held_std,
     effective_std,
     relative_std,
-    select_model,
+    select_free_parameters,
 )
-from .parametrization import FULL, Model, Parametrization
+from .parametrization import FULL, FreeParameters, Parametrization
 from .uncertainty import combined_information, jackknife_replicates, one_step_replicate
 
 #: MSAC threshold on the whitened constraint norm ‖r_i‖ (dimensionless).
 #: ‖r‖² ~ χ²(7) for an exact tensor: the 99 % quantile is 18.5 (‖r‖ = 4.3). Real
 #: tensors carry unmodelled error (residual distortion, correlated keypoints), so
-#: τ is set from the measured distribution at the ground truth on the Strecha
-#: scenes (about the 80th percentile there).
+#: τ lies above that, within the distribution of ‖r‖ at the true K on real scenes.
 MSAC_TAU = 10.0
 _FD_STEP_CAMERA = 1e-6
 _FD_STEP_THETA = 1e-7
@@ -142,7 +146,8 @@ def whitening_matrices(tensors: list[TripletTensor], theta: np.ndarray) -> np.nd
 
 @dataclass
 class ConstraintProblem:
-    """Whitened constraint residuals of a set of tensors as a function of θ.
+    """Whitened constraint residuals of one set of tensors as a function of θ, and
+    their minimisers; each solve of it gives a :class:`ConstraintSolution`.
 
     The unknowns are those of ``parametrization`` (``θ = A p + b``, see
     :mod:`.parametrization`); by default all four.
@@ -273,11 +278,9 @@ class ConstraintProblem:
         ``H⁻¹`` is the covariance when the keypoint noise model holds. H is divided
         by the reduced χ² of the residuals (degrees of freedom: residuals minus the
         parametrization's unknowns) only when that exceeds 1: unmodelled error on
-        real data inflates the covariance, it never shrinks it. Measured on the
-        synthetic experiment (100 runs per noise level 0.1 / 0.5 / 1.0 px): the
-        truth lies within ±2 std in 94–96 % of runs for every parameter, rms of
-        error/std 0.97–1.03. Scaling by the χ² itself (3 degrees of freedom for
-        one triplet) gave 75–91 %, a t(3) distribution.
+        real data inflates the covariance, it never shrinks it; scaling by the χ²
+        itself would make the std of a single triplet (3 degrees of freedom) a
+        t(3) variable (coverage: docs/uncertainty.md).
 
         Args:
             theta: the estimate (4,).
@@ -305,12 +308,11 @@ class ConstraintProblem:
     def insensitive_directions(self, theta: np.ndarray, which: np.ndarray) -> np.ndarray:
         """Orthonormal directions (4, d) of θ that leave the raw constraints unchanged.
 
-        Singular values of ``∂c/∂θ`` (unit-norm tensors, rms over tensors), measured
-        on synthetic 8-image sequences: 0.3–0.9 for general motion; along the fy
-        direction of planar or forward motion 1e-4 with 0.5 px noise and 7e-10
-        (finite-difference noise) without; all four 7e-10 for exact pure
-        translation. ``RAW_SENSITIVITY_FLOOR`` (1e-6) separates exact degeneracy
-        from everything noise can produce; the rest is the std test's job.
+        A direction is insensitive where the singular value of ``∂c/∂θ`` (unit-norm
+        tensors, rms over tensors) is below ``RAW_SENSITIVITY_FLOOR``: exact
+        degeneracy (pure translation, noise-free planar motion) leaves only
+        finite-difference noise there, any keypoint noise far more; weak but
+        nonzero sensitivity is the std test's job (docs/uncertainty.md).
         """
         tensors = self.tensors[which]
 
@@ -343,8 +345,9 @@ def msac_score(norms: np.ndarray, tau: float = MSAC_TAU) -> float:
 
 
 @dataclass
-class SelfCalibrationResult:
-    """θ estimate with its covariance and the per-tensor diagnostics."""
+class ConstraintSolution:
+    """One solve of a :class:`ConstraintProblem` (one method, one parametrization): θ
+    with its covariance and the per-tensor diagnostics."""
 
     theta: np.ndarray  # (4,)
     covariance: np.ndarray  # (4, 4) of θ (zero for held parameters and null directions)
@@ -366,7 +369,7 @@ def solve(
     tau: float = MSAC_TAU,
     irls_iterations: int = 10,
     span: Parametrization | None = None,
-) -> SelfCalibrationResult:
+) -> ConstraintSolution:
     """Run one TrifocalCalib variant (``direct``, ``msac``, ``msac-opt``) from the start.
 
     Args:
@@ -377,7 +380,7 @@ def solve(
         tau: MSAC threshold on ‖r_i‖.
         irls_iterations: msac-opt reweighting rounds at most.
         span: the unknowns the returned ``information`` covers (default: those of
-            ``parametrization``); a larger model's lets a caller judge what fixing
+            ``parametrization``); a larger set's lets a caller judge what fixing
             parameters costs (:func:`solve_with_fallback`).
     """
     parametrization = parametrization or FULL_PARAMETRIZATION
@@ -419,7 +422,7 @@ def solve(
     replicates = jackknife_replicates([t.image_ids for t in tensors], replicate)
     curvature = problem.information(theta, weights, residuals, jacobians)
     information = combined_information(curvature, replicates, span)
-    return SelfCalibrationResult(
+    return ConstraintSolution(
         theta=theta,
         covariance=conditioned_covariance(information, parametrization)[0],
         information=information,
@@ -435,12 +438,13 @@ def solve(
 
 @dataclass
 class FallbackSolution:
-    """The solve of the camera model's parameters, and the one finally kept."""
+    """How :func:`solve_with_fallback` solved a camera's :class:`FallbackProblem`: the
+    solve of every parameter the camera model has, and the one finally kept."""
 
-    solution: SelfCalibrationResult  # of ``model``
-    model: Model  # the parameters the images determine
-    unconstrained: SelfCalibrationResult  # of the base model (all it allows)
-    #: (4,) std of θ of ``model``'s estimate, its ties and holds counted as uncertain
+    solution: ConstraintSolution  # of ``free_parameters``
+    free_parameters: FreeParameters  # the parameters the images determine
+    unconstrained: ConstraintSolution  # of ``base``: every parameter the camera model has
+    #: (4,) std of θ of ``solution``, its ties and holds counted as uncertain
     #: (:func:`.observability.effective_std`); meaningful for the estimated parameters.
     relative_std: np.ndarray
     #: (4,) the std of θ below which a parameter counted as determined.
@@ -454,9 +458,10 @@ class FallbackSolution:
 
 
 @dataclass(frozen=True)
-class CalibrationProblem:
-    """What every solve for one camera shares: its tensors, the method, and the values
-    the parameters start from or are held at.
+class FallbackProblem:
+    """One camera's constraint solve: what its solves (:func:`solve_with_fallback`,
+    one :class:`ConstraintProblem` each) share: its tensors, the method, and the
+    values the parameters start from or are held at.
 
     Attributes:
         tensors: tensors normalised by ``start``.
@@ -481,23 +486,26 @@ class CalibrationProblem:
 
     def solve(
         self, parametrization: Parametrization, span: Parametrization | None = None
-    ) -> SelfCalibrationResult:
+    ) -> ConstraintSolution:
         """:func:`solve` of these tensors with this method for one parametrization."""
         return solve(self.tensors, self.method, parametrization, self.tau, span=span)
 
-    def parametrization(self, model: Model, held: np.ndarray | None = None) -> Parametrization:
-        """``model``'s parametrization around ``start`` (held values: ``held`` or the own)."""
-        return model.parametrization(self.start, self.held if held is None else held)
+    def parametrization(
+        self, free_parameters: FreeParameters, held: np.ndarray | None = None
+    ) -> Parametrization:
+        """``free_parameters``' parametrization around ``start`` (held values: ``held``
+        or the own)."""
+        return free_parameters.parametrization(self.start, self.held if held is None else held)
 
 
-def solve_with_fallback(problem: CalibrationProblem, base: Model) -> FallbackSolution:
+def solve_with_fallback(problem: FallbackProblem, base: FreeParameters) -> FallbackSolution:
     """Solve ``base``; while parameters are undetermined, re-solve without them.
 
-    Each round keeps the largest model the information at the current estimate
-    determines (:func:`.observability.select_model`), so every round estimates
-    strictly fewer parameters and the loop ends (at worst with everything held).
-    ``direct`` keeps ``base``: it has no outlier defence, so outlier tensors inflate
-    its reduced χ² (by 10⁴ on an 8-image fountain-P11 sequence) and its std says
+    Each round keeps the largest set of parameters the information at the current
+    estimate determines (:func:`.observability.select_free_parameters`), so every
+    round estimates strictly fewer parameters and the loop ends (at worst with
+    everything held). ``direct`` keeps ``base``: it has no outlier defence, so
+    outlier tensors inflate its reduced χ² by orders of magnitude and its std says
     nothing about which parameters the images determine; it is the paper's
     non-robust variant and returns its own least-squares estimate.
 
@@ -513,26 +521,34 @@ def solve_with_fallback(problem: CalibrationProblem, base: Model) -> FallbackSol
     """
     method, start, held = problem.method, problem.start, problem.held
     span = problem.parametrization(base)
-    model = base
+    free_parameters = base
     solution = unconstrained = problem.solve(span, span=span)
     while method != "direct":
-        reduced = select_model(
-            solution.information, model, base, start, held, problem.tolerances, problem.held_std
+        reduced = select_free_parameters(
+            solution.information,
+            free_parameters,
+            base,
+            start,
+            held,
+            problem.tolerances,
+            problem.held_std,
         )
-        if reduced == model:
+        if reduced == free_parameters:
             break
-        model = reduced
-        solution = problem.solve(problem.parametrization(model), span=span)
-    std = effective_std(solution.information, model, base, start, held, problem.held_std)
+        free_parameters = reduced
+        solution = problem.solve(problem.parametrization(free_parameters), span=span)
+    std = effective_std(solution.information, free_parameters, base, start, held, problem.held_std)
     shift = np.zeros(4)
-    if method != "direct" and 0 < model.dimension < base.dimension:
-        shift = held_value_sensitivity(problem, model, base, solution.theta)
+    if method != "direct" and 0 < free_parameters.dimension < base.dimension:
+        shift = held_value_sensitivity(problem, free_parameters, base, solution.theta)
         conditional = np.where(np.isfinite(solution.relative_std), solution.relative_std, np.inf)
         std = np.maximum(std, np.hypot(conditional, shift))
     moved = np.ones(4, dtype=bool)
-    if method != "direct" and model.dimension > 0:
-        moved = data_moves(problem, model, solution.theta)
-    return FallbackSolution(solution, model, unconstrained, std, problem.tolerances, shift, moved)
+    if method != "direct" and free_parameters.dimension > 0:
+        moved = data_moves(problem, free_parameters, solution.theta)
+    return FallbackSolution(
+        solution, free_parameters, unconstrained, std, problem.tolerances, shift, moved
+    )
 
 
 #: :func:`data_moves` starts this many tolerances away from the estimate ...
@@ -542,16 +558,19 @@ MOVE_TEST_OFFSET = 3.0
 MOVE_TEST_RECOVERY = 0.5
 
 
-def data_moves(problem: CalibrationProblem, model: Model, theta: np.ndarray) -> np.ndarray:
+def data_moves(
+    problem: FallbackProblem, free_parameters: FreeParameters, theta: np.ndarray
+) -> np.ndarray:
     """Whether the data moves each estimated parameter (4,): a parameter the data does
     not move from its start is not determined, whatever its std says.
 
-    The model is re-solved from the estimate ``theta`` with every estimated parameter
-    offset by ``MOVE_TEST_OFFSET`` tolerances (alternating signs); a parameter the
-    constraints determine returns at least ``MOVE_TEST_RECOVERY`` of the way.
+    ``free_parameters`` are solved again from the estimate ``theta`` with every
+    estimated parameter offset by ``MOVE_TEST_OFFSET`` tolerances (alternating
+    signs); a parameter the constraints determine returns at least
+    ``MOVE_TEST_RECOVERY`` of the way.
     Held parameters count as moved (they are not estimated).
     """
-    parametrization = problem.parametrization(model)
+    parametrization = problem.parametrization(free_parameters)
     free = parametrization.free(theta)
     signs = np.array([1.0, 1.0, -1.0, 1.0])
     offset_theta = MOVE_TEST_OFFSET * problem.tolerances * signs
@@ -567,12 +586,15 @@ def data_moves(problem: CalibrationProblem, model: Model, theta: np.ndarray) -> 
 
 
 def held_value_sensitivity(
-    problem: CalibrationProblem, model: Model, base: Model, theta: np.ndarray
+    problem: FallbackProblem,
+    free_parameters: FreeParameters,
+    base: FreeParameters,
+    theta: np.ndarray,
 ) -> np.ndarray:
     """How far (4,) the estimated θ (``theta``) move when the held values move by their std.
 
     Each held group (the focal length; cx; cy) is moved by its std in turn and
-    the model re-solved; the moves add in quadrature. This is the coupling the
+    ``free_parameters`` solved again; the moves add in quadrature. This is the coupling the
     linearised information misses when the held direction carries no
     information at all (there the curvature has no cross term, yet the
     estimated principal point follows a wrong focal length). Zero for held
@@ -581,16 +603,21 @@ def held_value_sensitivity(
     held_std = default_held_std() if problem.held_std is None else np.asarray(problem.held_std)
     fx0, fy0 = float(problem.start[0]), float(problem.start[1])
     groups = []
-    if model.focal == "held" and base.focal != "held":
+    if free_parameters.focal == "held" and base.focal != "held":
         groups.append(np.array([held_std[0] * fx0, held_std[1] * fy0, 0.0, 0.0]))
-    for index, kept, base_kept in ((2, model.cx, base.cx), (3, model.cy, base.cy)):
+    for index, kept, base_kept in (
+        (2, free_parameters.cx, base.cx),
+        (3, free_parameters.cy, base.cy),
+    ):
         if base_kept and not kept:
             step = np.zeros(4)
             step[index] = held_std[index] * (fx0 if index == 2 else fy0)
             groups.append(step)
     squared = np.zeros(4)
     for step in groups:
-        moved = problem.solve(problem.parametrization(model, problem.held + step)).theta
+        moved = problem.solve(problem.parametrization(free_parameters, problem.held + step)).theta
         squared += (moved - theta) ** 2
-    estimated = np.array([model.focal != "held"] * 2 + [model.cx, model.cy])
+    estimated = np.array(
+        [free_parameters.focal != "held"] * 2 + [free_parameters.cx, free_parameters.cy]
+    )
     return np.where(estimated, np.sqrt(squared), 0.0)

@@ -107,9 +107,7 @@ def other_starts(
         if all(abs(focal / f - 1.0) > RESTART_THRESHOLD for f in tried):
             tried.append(focal)
             other = with_focal(start, focal)
-            candidates.append(
-                StartCandidate(other, first.held, first.held_std, first.held_source)
-            )
+            candidates.append(StartCandidate(other, first.held, first.held_std, first.held_source))
     return candidates[:MAX_OTHER_STARTS]
 
 

@@ -3,10 +3,9 @@
 Why. The whitened constraint residuals (:mod:`.selfcalibration`) measure a
 tensor's distance from the calibrated tensors of K to *first order* in the
 tensor's noise. For a triplet whose tracks lie close to one plane the projective
-tensor is poorly determined and that linearisation fails: on the synthetic facade
-at 1 % relief (``benchmarks/planar_facade.py``, seed 0) the whitened norm ‖r‖ at
-the true K is 27 and 73 for two triplets (χ(7) gives 1–4), while their
-likelihood-ratio statistic below is 2.6 and 2.3, as χ²(7) predicts. Such
+tensor is poorly determined and that linearisation fails: the whitened norm ‖r‖
+at the true K can be far beyond what χ(7) gives while the likelihood-ratio
+statistic below is as χ²(7) predicts (docs/planar_and_sequences.md). Such
 triplets are either left out as outliers or pull the estimate aside.
 
 What. For each tensor (cameras ``P2``, ``P3`` of its ML projective fit) and a
@@ -36,9 +35,9 @@ variance the residuals show, and one Gauss–Newton step per image group left ou
 gives the same delete-a-group jackknife as the constraint solve's
 (:func:`.uncertainty.jackknife_replicates`) without new adjustments. Which
 parameters are estimated
-(free, tied ``fy = fx``, held) follows the constraint solve's model; a model that
-holds one principal-point coordinate but not the other is not expressible with
-pycolmap's cameras, and gets no polish.
+(free, tied ``fy = fx``, held) follows the constraint solve's
+:class:`.parametrization.FreeParameters`; holding one principal-point coordinate
+but not the other is not expressible with pycolmap's cameras, and gets no polish.
 
 The camera is a PINHOLE (``fx, fy, cx, cy``) or, for a tied focal length, a
 SIMPLE_PINHOLE camera in COLMAP's pixel convention (the centre of the top-left
@@ -61,7 +60,7 @@ from ..geometry.projective_ba import refine_triplet
 from ..geometry.tensor_estimation import TripletTensor
 from ..geometry.trifocal import intrinsics_matrix
 from .bundle_information import reduced_information
-from .parametrization import Model
+from .parametrization import FreeParameters
 from .uncertainty import jackknife_covariance, jackknife_replicates
 
 _CAMERA_ID = 1
@@ -111,16 +110,17 @@ class TripletBundleResult:
         return np.maximum(self.covariance_std, self.jackknife_std)
 
 
-def pycolmap_camera_setup(model: Model) -> tuple[str, bool, bool] | None:
-    """(COLMAP camera model, refine focal length, refine principal point) of a model.
+def pycolmap_camera_setup(free_parameters: FreeParameters) -> tuple[str, bool, bool] | None:
+    """(COLMAP camera model, refine focal length, refine principal point) that estimate
+    ``free_parameters``.
 
     None when pycolmap cannot express it (one principal-point coordinate held) or
     nothing is estimated.
     """
-    if model.cx != model.cy or model.dimension == 0:
+    if free_parameters.cx != free_parameters.cy or free_parameters.dimension == 0:
         return None
-    camera_model = "SIMPLE_PINHOLE" if model.focal == "tied" else "PINHOLE"
-    return camera_model, model.focal != "held", model.cx
+    camera_model = "SIMPLE_PINHOLE" if free_parameters.focal == "tied" else "PINHOLE"
+    return camera_model, free_parameters.focal != "held", free_parameters.cx
 
 
 def calibrated_cameras(
@@ -403,7 +403,7 @@ def polish_intrinsics(
     tracks: dict[tuple[int, int, int], np.ndarray],
     start: np.ndarray,
     estimate: np.ndarray,
-    model: Model,
+    free_parameters: FreeParameters,
     size: tuple[int, int],
     tau: float,
 ) -> TripletBundleResult | None:
@@ -415,13 +415,14 @@ def polish_intrinsics(
             tensor's ``inliers`` picks from them.
         start: (fx0, fy0, cx0, cy0) of the tensors' normalisation, pixels.
         estimate: the constraint solve's (fx, fy, cx, cy), held values included.
-        model: what is estimated (see :func:`pycolmap_camera_setup`).
+        free_parameters: what is estimated (see :func:`pycolmap_camera_setup`).
         size: (width, height) of the images, pixels.
         tau: the MSAC threshold; triplets with ``λ < τ²`` agree.
 
-    Returns None when the model is not expressible, no triplet agrees, or Ceres fails.
+    Returns None when ``free_parameters`` are not expressible, no triplet agrees, or
+    Ceres fails.
     """
-    start_values = _camera_start(model, estimate)
+    start_values = _camera_start(free_parameters, estimate)
     if start_values is None or not tensors:
         return None
     camera_model, refine_focal, refine_principal_point, intrinsics = start_values
@@ -452,7 +453,7 @@ def polish_intrinsics(
             return None
         intrinsics = shared.intrinsics()
     information, gradients, costs = shared.information(agreeing)
-    free = _free_parameters(camera_model, refine_focal, refine_principal_point)
+    free = _refined_directions(camera_model, refine_focal, refine_principal_point)
     observations = sum(6 * len(shared.triplets[p].point_ids) for p in agreeing)
     unknowns = sum(3 * len(shared.triplets[p].point_ids) + 11 for p in agreeing)
     variance = float(costs.sum()) / max(observations - unknowns - free.shape[1], 1)
@@ -463,7 +464,7 @@ def polish_intrinsics(
     groups = [tensors[shared.triplets[p].index].image_ids for p in agreeing]
     jackknife_std = _one_step_jackknife_std(intrinsics, information, gradients, free, groups)
     # λ at the final K: exact for the adjusted triplets; the others keep their λ at
-    # the last round's start (they disagreed there, and K moved by a fraction of a std).
+    # the final round's start (they disagreed there, and K moved by a fraction of a std).
     after = shared.ratios()
     adjusted = set(agreeing)
     ratios = np.full(len(tensors), np.inf)
@@ -483,7 +484,7 @@ def predicted_jackknife_std(
     tracks: dict[tuple[int, int, int], np.ndarray],
     start: np.ndarray,
     estimate: np.ndarray,
-    model: Model,
+    free_parameters: FreeParameters,
 ) -> np.ndarray | None:
     """(4,) jackknife std of the polish (pixels) predicted from its first Gauss–Newton step.
 
@@ -493,7 +494,7 @@ def predicted_jackknife_std(
     step per image group left out. Milliseconds per tensor; what the polish would
     reach differs by its further iterations. None where it cannot be formed.
     """
-    start_values = _camera_start(model, estimate)
+    start_values = _camera_start(free_parameters, estimate)
     if start_values is None or not tensors:
         return None
     camera_model, refine_focal, refine_principal_point, intrinsics = start_values
@@ -511,7 +512,7 @@ def predicted_jackknife_std(
             groups.append(tensor.image_ids)
     if not parts:
         return None
-    free = _free_parameters(camera_model, refine_focal, refine_principal_point)
+    free = _refined_directions(camera_model, refine_focal, refine_principal_point)
     return _one_step_jackknife_std(
         intrinsics,
         np.stack([h for h, _ in parts]),
@@ -556,11 +557,13 @@ def _inlier_pixels(
     return pixels
 
 
-def _camera_start(model: Model, estimate: np.ndarray) -> tuple[str, bool, bool, np.ndarray] | None:
+def _camera_start(
+    free_parameters: FreeParameters, estimate: np.ndarray
+) -> tuple[str, bool, bool, np.ndarray] | None:
     """The shared camera's setup (:func:`pycolmap_camera_setup`) and its starting
     (fx, fy, cx, cy) in pixels (fy = fx for a single focal length); None where
-    pycolmap cannot express the model."""
-    setup = pycolmap_camera_setup(model)
+    pycolmap cannot express ``free_parameters``."""
+    setup = pycolmap_camera_setup(free_parameters)
     if setup is None:
         return None
     intrinsics = np.asarray(estimate, dtype=float).copy()
@@ -569,7 +572,7 @@ def _camera_start(model: Model, estimate: np.ndarray) -> tuple[str, bool, bool, 
     return (*setup, intrinsics)
 
 
-def _free_parameters(
+def _refined_directions(
     camera_model: str, refine_focal: bool, refine_principal_point: bool
 ) -> np.ndarray:
     """A (4, k): (fx, fy, cx, cy) = A p for the k parameters the adjustment refined."""

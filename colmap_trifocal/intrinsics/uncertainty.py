@@ -5,11 +5,9 @@ Two estimates of the covariance of θ (the relative corrections of
 
 * **Curvature**: ``H⁻¹`` with ``H = JᵀJ`` of the whitened constraints of the
   inlier tensors (:meth:`.ConstraintProblem.information`). Exact when the
-  tensors are independent; calibrated on the paper's synthetic experiment (one
-  triplet). But triplets of a sequence share images and tracks, so their
-  errors are correlated and H over-counts: measured on 8-image general-motion
-  sequences (0.5 px, 20 triplets, 20 runs) the truth lay within ±2 std in only
-  65–80 % of runs (rms of error/std 1.4–1.8).
+  tensors are independent (one triplet, the paper's synthetic experiment). But
+  triplets of a sequence share images and tracks, so their errors are correlated
+  and H over-counts: the std alone is too small there.
 * **Jackknife over images**: the images of the triplets are dealt into at most
   ``MAX_GROUPS`` groups; each replicate drops one group's images (every tensor
   that uses one of them) and re-solves from the estimate (the method's local
@@ -17,13 +15,11 @@ Two estimates of the covariance of θ (the relative corrections of
   otherwise); ``C_J = (g − 1)/g Σ (θ_(i) − θ̄)(θ_(i) − θ̄)ᵀ``. Dropping whole
   images keeps the correlated tensors together. Each replicate is one
   Gauss–Newton step from the full estimate with the fit's weights
-  (:func:`one_step_replicate`, the linearised jackknife): re-solving the
-  replicates cost 0.44 s on fountain-P11, these a few milliseconds. Measured on
-  the same sequences (triplets spread over the images, :mod:`.tracks`): 97–100 %
-  coverage, rms 0.7–0.86, so it errs on the safe side (each replicate drops
-  about 3/g of the tensors, not the 1/g the formula assumes). On forward motion
-  with no yaw it reveals a focal length varying by 1.4–3 % where the curvature
-  said 0.2–0.8 %.
+  (:func:`one_step_replicate`, the linearised jackknife), a small fraction of the
+  cost of re-solving. It errs on the safe side: each replicate drops about 3/g of
+  the tensors, not the 1/g the formula assumes. It also sees what the curvature
+  misses, such as a focal length that varies with the images left out on forward
+  motion. Coverage of both: docs/uncertainty.md.
 
 The reported covariance is the larger of the two in every direction: in the
 coordinates where the curvature covariance is the identity, the jackknife
@@ -130,12 +126,12 @@ def combined_information(
 
     Args:
         curvature: H (4, 4) about θ from the cost's curvature.
-        replicates: jackknife θ (g, 4), or None (then H restricted to the model).
+        replicates: jackknife θ (g, 4), or None (then H restricted to ``parametrization``).
         parametrization: the estimated unknowns ``θ = A p + b``.
 
     Returns:
         ``A⁺ᵀ H_p A⁺`` with ``H_p`` the combined information about p: zero outside
-        the model's span, so a sub-model ``A B`` gets ``Bᵀ H_p B``.
+        the span of ``A``, so a subset of its unknowns ``A B`` gets ``Bᵀ H_p B``.
     """
     matrix = parametrization.matrix
     k = parametrization.dimension

@@ -13,8 +13,8 @@ Hard motion (:func:`incremental_mapping_with_retries`): when mapping finds no
 initial pair or registers fewer than ``MIN_REGISTERED_FRACTION`` of the images,
 it is retried with a smaller ``mapper.init_min_tri_angle`` (16° → 8° → 4°,
 ``INIT_TRI_ANGLES``). Driving sequences see little parallax between the frames
-of a candidate pair: on a straight 51-frame KITTI drive COLMAP's 16° found no
-initial pair even with the true K, 4° registered all frames. COLMAP relaxes by
+of a candidate pair: on a straight drive COLMAP's 16° finds no initial pair even
+with the true K, where 4° registers every frame (docs/hard_scenes.md). COLMAP relaxes by
 itself only when no model at all results (``init_min_num_inliers`` and
 ``init_min_tri_angle`` halved twice each, so 16° → 4°); a model of a few
 images, which a driving sequence often gives, is not retried there.
@@ -22,8 +22,8 @@ images, which a driving sequence often gives, is not retried there.
 Forward motion: COLMAP also rejects every initial pair whose unit baseline has
 ``|t_z| >= mapper.init_max_forward_motion`` (0.95) in the first camera, i.e. a
 baseline within 18° of the optical axis, and no relaxation touches that limit. A
-camera looking along a straight drive has ``|t_z|`` ≈ 0.9999 for every pair
-(measured on ``synthetic.driving``), so no angle gives a model there. The retries
+camera looking along a straight drive has ``|t_z|`` ≈ 1 for every pair, so no
+angle gives a model there. The retries
 after the first attempt are therefore *seeded*: the initial pair is the widest
 pair (COLMAP's own two-view estimate with the calibrated K: median triangulation
 angle) among the calibration's best triplets (:func:`choose_initial_pair`), given
@@ -31,19 +31,18 @@ to COLMAP as ``init_image_id1/2``, with the forward-motion limit lifted for that
 pair only. Unseeded retries at 8° and 4° follow when the seeded ones fall short.
 Each attempt starts at its angle; COLMAP's own relaxation inside an attempt
 (``init_min_num_inliers`` and ``init_min_tri_angle`` halved, twice) may still
-initialise below it: the seeded attempts at 8° of the synthetic drives in
-docs/hard_scenes.md started from pairs of 2.5–5.6°.
+initialise below it (docs/hard_scenes.md).
 
 Known focal length: COLMAP re-estimates the focal length while registering images
 of a camera whose ``prior_focal_length`` flag is unset (the default of feature
 extraction), and on forward motion, where the focal length barely shows in the
-images, that estimate wanders (a 12-frame synthetic drive started at the true
-718.9 px ended at 2019 px with 0.42 px reprojection error). For the seeded
+images, that estimate wanders far from a right start while the reprojection error
+stays small. For the seeded
 attempts ``run`` sets the flag of cameras whose focal length the calibration
 estimated (:func:`focal_marked_known`); bundle adjustment still refines it when it
-is not determined. The first attempt keeps COLMAP's behaviour: on the KITTI drive
-its per-image estimate pulled a weakly determined fy (−5.4 %) back to −0.7 %,
-where the flag left it at −2.3 %.
+is not determined. The first attempt keeps COLMAP's behaviour: its per-image
+estimate can pull a weakly determined focal length back towards the truth, which
+the flag would prevent (docs/hard_scenes.md).
 """
 
 from __future__ import annotations

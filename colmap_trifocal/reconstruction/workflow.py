@@ -31,14 +31,14 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
-import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
 from ..common.files import Input, Output, refuse_outputs_over_inputs, write_text_atomically
 from ..common.log import logger
-from ..database.cameras import PINHOLE_MODELS, CameraInfo
+from ..database.cameras import PINHOLE_MODELS
 from ..database.features import build_database, check_max_image_size
 from ..database.shared_cameras import merge_group_cameras
 from ..database.snapshot import read_database
@@ -49,21 +49,19 @@ from ..intrinsics.calibrate import (
     calibrate_contents,
     updated_cameras,
 )
-from ..intrinsics.results import PARAMETER_NAMES, apply_cameras
+from ..intrinsics.results import CameraCalibration, apply_cameras
 from .images import IMAGE_SUFFIXES, ImageListing, list_images
 from .mapping import (
     MAPPERS,
     REFINE_CHOICES,
     InitialPair,
     MappingAttempt,
-    camera_intrinsics,
     describe_attempts,
     global_mapping,
     incremental_mapping_with_retries,
-    mean_reprojection_error,
     refine_intrinsics,
-    registered_images_per_camera,
 )
+from .report import RunReport, build_report
 from .visualize import load_model
 from .workspace import WORKSPACE_OUTPUTS, open_workspace
 
@@ -134,11 +132,11 @@ def run_pipeline(
     workspace: Path,
     options: RunOptions,
     on_stage: Callable[[str], None] | None = None,
-) -> dict:
+) -> RunReport:
     """Run all stages; returns the report (also written to ``WORKSPACE/report.json``).
 
     ``on_stage`` receives one line as each long stage starts (features, mapping, bundle
-    adjustment); the mapping's retries, if any, are described in ``report["mapping"]["note"]``.
+    adjustment); the mapping's retries, if any, are described in ``report.mapping["note"]``.
     """
     if options.refine not in REFINE_CHOICES:
         raise CalibrationError(
@@ -164,13 +162,13 @@ def _run_stages(
     options: RunOptions,
     given_model: pycolmap.Reconstruction | None,
     on_stage: Callable[[str], None] | None,
-) -> dict:
+) -> RunReport:
     """The stages of :func:`run_pipeline` in the prepared, locked workspace; the report."""
     names = None if listing is None else listing.names
     database = workspace / "database.db"
     seconds: dict[str, float] = {}
 
-    start = time.perf_counter()
+    began = time.perf_counter()
     if options.database is not None:
         contents = read_database(options.database)  # validated (one-line errors), then copied
         copy_database(options.database, database)  # with what is still in its -wal
@@ -187,9 +185,9 @@ def _run_stages(
             camera_mode=options.camera_mode,
         )
         contents = read_database(database)
-    seconds["features"] = time.perf_counter() - start
+    seconds["features"] = time.perf_counter() - began
 
-    start = time.perf_counter()
+    began = time.perf_counter()
     calibrations = calibrate_contents(
         contents,
         CalibrationOptions(
@@ -203,10 +201,10 @@ def _run_stages(
     write_intrinsics(database, updated, backup=False)  # our own copy in the workspace
     if options.model is None:  # one camera per group while mapping (the copy only)
         merge_group_cameras(database, [list(c.camera_ids) for c in calibrations])
-    seconds["calibrate"] = time.perf_counter() - start
+    seconds["calibrate"] = time.perf_counter() - began
 
-    start = time.perf_counter()
-    mapping: dict = {}
+    began = time.perf_counter()
+    mapping: dict[str, Any] = {}
     refine = refined_while_mapping(calibrations)
     if given_model is not None:
         reconstruction = given_model
@@ -248,35 +246,43 @@ def _run_stages(
         if retried:
             logger.info(retried)
             mapping["note"] = retried
-    seconds["mapping"] = time.perf_counter() - start
+    seconds["mapping"] = time.perf_counter() - began
 
-    start = time.perf_counter()
+    began = time.perf_counter()
     if options.refine == "ba":
         refined = "focal lengths, principal points" + (
             " and distortion" if refine["distortion"] else ""
         )
         _stage(f"bundle adjustment of {refined}", on_stage)
         refine_intrinsics(reconstruction, distortion=refine["distortion"])
-    seconds["refine"] = time.perf_counter() - start
+    seconds["refine"] = time.perf_counter() - began
 
     model_dir = workspace / "sparse" / "0"
     model_dir.mkdir(parents=True, exist_ok=True)
     reconstruction.write(model_dir)
-    report = build_report(reconstruction, calibrations, seconds, options)
-    report["mapping"] = mapping
-    # Files with an image suffix that the extraction did not get (COLMAP skips them too).
-    report["skipped_images"] = [asdict(s) for s in listing.skipped] if listing else []
-    write_text_atomically(workspace / "report.json", json.dumps(report, indent=2) + "\n")
+    report = build_report(
+        reconstruction,
+        calibrations,
+        method=options.method,
+        mapper=options.mapper,
+        refine=options.refine,
+        seconds=seconds,
+        mapping=mapping,
+        # Files with an image suffix that the extraction did not get (COLMAP skips them too).
+        skipped_images=[asdict(s) for s in listing.skipped] if listing else [],
+    )
+    write_text_atomically(workspace / "report.json", json.dumps(report.to_json(), indent=2) + "\n")
     logger.info("wrote %s", workspace / "report.json")
     return report
 
 
-def refined_while_mapping(calibrations: list) -> dict[str, bool]:
+def refined_while_mapping(calibrations: list[CameraCalibration]) -> dict[str, bool]:
     """Which intrinsics mapping refines: those some camera's calibration did not determine,
     and the distortion of camera models that have it (also in the final bundle adjustment).
 
-    A held or weakly determined value baked into the model is what made ``run``
-    end 1.27 % off where mapping that refines it reached 0.17 % (issue 13).
+    A held or weakly determined value held fixed through mapping would stay as wrong
+    as the calibration left it; mapping that refines it ends far closer
+    (docs/hard_scenes.md).
     """
     focal = any(not (c.observable["fx"] and c.observable["fy"]) for c in calibrations)
     principal = any(not (c.observable["cx"] and c.observable["cy"]) for c in calibrations)
@@ -287,14 +293,9 @@ def refined_while_mapping(calibrations: list) -> dict[str, bool]:
     return {"focal_length": focal, "principal_point": principal, "distortion": distortion}
 
 
-def focal_estimated_cameras(calibrations: list) -> list[int]:
+def focal_estimated_cameras(calibrations: list[CameraCalibration]) -> list[int]:
     """Camera ids whose focal length the calibration estimated from the images (not held)."""
-    return [
-        int(camera_id)
-        for c in calibrations
-        if c.estimated["fx"]
-        for camera_id in getattr(c, "camera_ids", [c.camera_id])
-    ]
+    return [int(camera_id) for c in calibrations if c.estimated["fx"] for camera_id in c.camera_ids]
 
 
 #: Triplets of the calibration whose pairs are candidates for a seeded initial pair.
@@ -302,7 +303,7 @@ SEED_TRIPLETS = 8
 
 
 def seed_candidate_pairs(
-    calibrations: list, max_triplets: int = SEED_TRIPLETS
+    calibrations: list[CameraCalibration], max_triplets: int = SEED_TRIPLETS
 ) -> list[tuple[int, int]]:
     """Image pairs of each camera's best triplets: candidates for a seeded initial pair.
 
@@ -326,62 +327,3 @@ def _stage(message: str, on_stage: Callable[[str], None] | None) -> None:
     logger.info(message)
     if on_stage is not None:
         on_stage(message)
-
-
-def build_report(
-    reconstruction: pycolmap.Reconstruction,
-    calibrations: list,
-    seconds: dict[str, float],
-    options: RunOptions,
-) -> dict:
-    """The ``report.json`` content: per camera estimate, BA result, difference; timings."""
-    registered = registered_images_per_camera(reconstruction)
-    cameras = []
-    for calibration in calibrations:
-        camera_id = calibration.camera_id
-        ids = list(getattr(calibration, "camera_ids", [camera_id]))
-        in_model = [c for c in ids if c in reconstruction.cameras]
-        if not in_model:
-            continue  # none of the group's images was registered
-        refined = np.mean([camera_intrinsics(reconstruction.cameras[c]) for c in in_model], axis=0)
-        estimate = calibration.intrinsics
-        cameras.append(
-            {
-                "camera_id": camera_id,
-                "camera_ids": ids,
-                "model": calibration.model,
-                "trifocal": dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True)),
-                "trifocal_std": calibration.std,
-                "trifocal_distortion": calibration.lens_distortion,
-                "observable": calibration.observable,
-                "assumptions": calibration.assumptions,
-                "source": calibration.source,
-                "warning": calibration.warning(),
-                "refined": dict(zip(PARAMETER_NAMES, map(float, refined), strict=True)),
-                "difference": dict(
-                    zip(PARAMETER_NAMES, map(float, refined - estimate), strict=True)
-                ),
-                "relative_difference": float(np.mean(np.abs(refined / estimate - 1))),
-                # COLMAP's extra parameters (e.g. SIMPLE_RADIAL's k) after mapping and
-                # bundle adjustment, averaged over the group; [] for pinhole models.
-                "distortion": np.mean(
-                    [
-                        CameraInfo.from_pycolmap(reconstruction.cameras[c]).distortion
-                        for c in in_model
-                    ],
-                    axis=0,
-                ).tolist(),
-                "num_registered_images": sum(registered.get(c, 0) for c in ids),
-            }
-        )
-    return {
-        "method": options.method,
-        "mapper": options.mapper,
-        "refine": options.refine,
-        "num_images": reconstruction.num_images(),
-        "num_registered_images": reconstruction.num_reg_images(),
-        "num_points3D": reconstruction.num_points3D(),
-        "mean_reprojection_error_px": mean_reprojection_error(reconstruction),
-        "cameras": cameras,
-        "seconds": seconds,
-    }

@@ -17,6 +17,7 @@ import numpy as np
 import pycolmap
 
 from ..intrinsics.results import PARAMETER_NAMES
+from ..reconstruction.report import RunReport
 from ..reconstruction.workflow import RunOptions, run_pipeline
 from .database import corrupt_verified_matches
 
@@ -27,13 +28,15 @@ DEMO_SIZE = (1600, 1200)
 
 @dataclass
 class DemoResult:
+    """The demo's camera (pixels) and what the run made of it."""
+
     truth: np.ndarray  # (4,) fx, fy, cx, cy
     prior: np.ndarray  # (4,) stored wrong camera
-    report: dict  # the run's report.json
+    report: RunReport
 
     def estimate(self, stage: str) -> np.ndarray:
         """(fx, fy, cx, cy) after ``trifocal`` or ``refined`` (bundle adjustment)."""
-        values = self.report["cameras"][0][stage]
+        values = self.report.cameras[0][stage]
         return np.array([values[name] for name in PARAMETER_NAMES])
 
     def error(self, stage: str) -> float:
@@ -104,13 +107,13 @@ def run_demo(seed: int = 0, workdir: Path | None = None, method: str = "msac-opt
 
 def format_demo(result: DemoResult) -> str:
     """A small table: true, prior, TrifocalCalib estimate (± std), BA-refined, and errors."""
-    camera = result.report["cameras"][0]
+    camera = result.report.cameras[0]
     trifocal, refined = result.estimate("trifocal"), result.estimate("refined")
-    seconds = result.report["seconds"]
+    seconds = result.report.seconds
     lines = [
         f"synthetic PINHOLE camera {DEMO_SIZE[0]}x{DEMO_SIZE[1]}, "
-        f"{result.report['num_images']} images, 0.5 px keypoint noise, 20 % wrong matches",
-        f"registered {result.report['num_registered_images']} images; seconds: "
+        f"{result.report.num_images} images, 0.5 px keypoint noise, 20 % wrong matches",
+        f"registered {result.report.num_registered_images} images; seconds: "
         + ", ".join(f"{stage} {t:.1f}" for stage, t in seconds.items()),
         f"{'':>4} {'true':>9} {'prior':>9} {'trifocal':>9} {'± std':>7} {'BA':>9}",
     ]

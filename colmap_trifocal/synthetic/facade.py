@@ -162,12 +162,12 @@ def _add_outliers(scene: SyntheticScene, ratio: float, rng: np.random.Generator)
     if count == 0:
         return
     assert scene.visible is not None
-    tracks = rng.choice(scene.num_points, size=count, replace=False)
+    corrupted = rng.choice(scene.num_points, size=count, replace=False)
     # A random view among those that see the track (argmax of random keys over them).
-    keys = np.where(scene.visible[:, tracks], rng.random((scene.num_cameras, count)), -1.0)
+    keys = np.where(scene.visible[:, corrupted], rng.random((scene.num_cameras, count)), -1.0)
     views = np.argmax(keys, axis=0)
-    scene.observations[views, tracks] = rng.uniform(
+    scene.observations[views, corrupted] = rng.uniform(
         [0.0, 0.0], [float(scene.width), float(scene.height)], size=(count, 2)
     )
-    scene.outliers[tracks] = True
-    scene.outlier_views[tracks] = views
+    scene.outliers[corrupted] = True
+    scene.outlier_views[corrupted] = views

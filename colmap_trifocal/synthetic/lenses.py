@@ -2,9 +2,8 @@
 
 COLMAP's default camera guesses ``f = 1.2 · max(width, height)``, a 45° horizontal
 field of view. A telephoto lens (10°: f = 5.7 · max(w, h)) or a wide lens (100°:
-f = 0.42 · max(w, h)) is far outside the ±2× a search around that guess used to
-reach, so these scenes check that a calibration finds such lenses from the default
-camera.
+f = 0.42 · max(w, h)) is far outside ±2× of that guess, so these scenes check
+that a calibration finds such lenses from the default camera.
 
 Both scenes are rings of cameras around an object (general rotations: every
 intrinsic is determined in principle), one shared pinhole camera with square
@@ -93,7 +92,7 @@ def turntable(
     elevation_deg: float = 20.0,
     num_points: int = 600,
 ) -> SyntheticScene:
-    """A small object on a turntable shot through a narrow lens (issue 13's 11° case).
+    """A small object on a turntable shot through a narrow lens (11° by default).
 
     ``num_images`` views evenly around a full turn, all from ``elevation_deg`` above
     the table (the camera looks down at the object), 3 m away; the object is a

@@ -236,7 +236,8 @@ def handheld_indoor(
     The camera stays 1.4–1.6 m high, moves along a slight arc and aims at points
     of the far corner (two walls 3–4.5 m away and furniture in front of them), with
     ±4° pitch and ±3° roll of an unsteady hand. Few, noisy tracks (uniform
-    ±``noise_px``) and a short baseline: the small handheld sets of issue 13.
+    ±``noise_px``) and a short baseline: a small handheld set
+    (docs/hard_scenes.md).
     """
     rng = _as_generator(seed)
     along = np.linspace(-walk / 2, walk / 2, num_images)

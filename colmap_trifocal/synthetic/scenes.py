@@ -330,12 +330,12 @@ def _observe(
     outlier_views = np.full(num_points, -1)
     num_outliers = int(round(outlier_ratio * num_points))
     if num_outliers > 0:
-        tracks = rng.choice(num_points, size=num_outliers, replace=False)
+        corrupted = rng.choice(num_points, size=num_outliers, replace=False)
         views = rng.integers(0, num_cameras, size=num_outliers)
-        observations[views, tracks] = rng.uniform(
+        observations[views, corrupted] = rng.uniform(
             [0.0, 0.0], [float(width), float(height)], size=(num_outliers, 2)
         )
-        outlier_views[tracks] = views
+        outlier_views[corrupted] = views
     return observations, outlier_views
 
 

@@ -1,0 +1,134 @@
+"""What ``run`` gives: its report (``WORKSPACE/report.json``).
+
+:class:`RunReport` is the run level of the results: per camera (a group of camera ids,
+:class:`..intrinsics.results.CameraCalibration`) TrifocalCalib's estimate beside the
+intrinsics the reconstruction ended with, then the reconstruction's size and error,
+the mapping and the seconds of each stage. Intrinsics in pixels (COLMAP's pixel
+convention, the centre of the top-left pixel at (0.5, 0.5)).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+import pycolmap
+
+from ..database.cameras import CameraInfo
+from ..intrinsics.results import PARAMETER_NAMES, CameraCalibration
+from .mapping import camera_intrinsics, mean_reprojection_error, registered_images_per_camera
+
+
+@dataclass
+class RunReport:
+    """The report of one ``run``, as ``report.json`` holds it (:meth:`to_json`).
+
+    Attributes:
+        method, mapper, refine: the run's ``--method``, ``--mapper`` and ``--refine``.
+        num_images, num_registered_images, num_points3D: the reconstruction's.
+        mean_reprojection_error_px: over all observations, pixels.
+        cameras: one object per camera registered in the reconstruction
+            (:func:`camera_report`).
+        seconds: wall seconds of each stage (features, calibrate, mapping, refine).
+        mapping: the mapper, what it refined and its attempts (with a ``note`` when it
+            retried); empty when the estimate went into a given model.
+        skipped_images: the files with an image suffix the extraction did not get
+            (``name``, ``reason``), as COLMAP skips what it cannot read.
+    """
+
+    method: str
+    mapper: str
+    refine: str
+    num_images: int
+    num_registered_images: int
+    num_points3D: int
+    mean_reprojection_error_px: float
+    cameras: list[dict[str, Any]]
+    seconds: dict[str, float]
+    mapping: dict[str, Any] = field(default_factory=dict)
+    skipped_images: list[dict[str, str]] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``report.json`` object (a copy: changing it leaves the report as it is)."""
+        return asdict(self)
+
+
+def build_report(
+    reconstruction: pycolmap.Reconstruction,
+    calibrations: list[CameraCalibration],
+    *,
+    method: str,
+    mapper: str,
+    refine: str,
+    seconds: dict[str, float],
+    mapping: dict[str, Any],
+    skipped_images: list[dict[str, str]] | None = None,
+) -> RunReport:
+    """The report of a run that ended with ``reconstruction`` (see :class:`RunReport`).
+
+    ``calibrations`` are the calibrate stage's results; a camera none of whose images
+    was registered is left out.
+    """
+    registered = registered_images_per_camera(reconstruction)
+    cameras = [
+        camera_report(reconstruction, calibration, registered)
+        for calibration in calibrations
+        if any(c in reconstruction.cameras for c in calibration.camera_ids)
+    ]
+    return RunReport(
+        method=method,
+        mapper=mapper,
+        refine=refine,
+        num_images=reconstruction.num_images(),
+        num_registered_images=reconstruction.num_reg_images(),
+        num_points3D=reconstruction.num_points3D(),
+        mean_reprojection_error_px=mean_reprojection_error(reconstruction),
+        cameras=cameras,
+        seconds=seconds,
+        mapping=mapping,
+        skipped_images=list(skipped_images or []),
+    )
+
+
+def camera_report(
+    reconstruction: pycolmap.Reconstruction,
+    calibration: CameraCalibration,
+    registered: dict[int, int],
+) -> dict[str, Any]:
+    """One camera's object of the report: TrifocalCalib's estimate (``trifocal``, its
+    std, distortion, what is determined and why) beside the reconstruction's
+    (``refined``: the mean over the group's camera ids in it), their difference
+    (refined − trifocal, pixels), its mean relative size, and the camera's
+    distortion parameters after mapping (COLMAP's order; ``[]`` for pinhole models).
+
+    Args:
+        registered: camera id -> registered images (:func:`.registered_images_per_camera`).
+    """
+    ids = list(calibration.camera_ids)
+    in_model = [c for c in ids if c in reconstruction.cameras]
+    refined = np.mean([camera_intrinsics(reconstruction.cameras[c]) for c in in_model], axis=0)
+    estimate = calibration.intrinsics
+    distortion = [CameraInfo.from_pycolmap(reconstruction.cameras[c]).distortion for c in in_model]
+    return {
+        "camera_id": calibration.camera_id,
+        "camera_ids": ids,
+        "model": calibration.model,
+        "trifocal": _named(estimate),
+        "trifocal_std": calibration.std,
+        "trifocal_distortion": calibration.lens_distortion,
+        "observable": calibration.observable,
+        "assumptions": calibration.assumptions,
+        "source": calibration.source,
+        "warning": calibration.warning(),
+        "refined": _named(refined),
+        "difference": _named(refined - estimate),
+        "relative_difference": float(np.mean(np.abs(refined / estimate - 1))),
+        "distortion": np.mean(distortion, axis=0).tolist(),
+        "num_registered_images": sum(registered.get(c, 0) for c in ids),
+    }
+
+
+def _named(intrinsics: np.ndarray) -> dict[str, float]:
+    """``{"fx", "fy", "cx", "cy"}`` of (4,) intrinsics, pixels."""
+    return dict(zip(PARAMETER_NAMES, map(float, intrinsics), strict=True))
