@@ -8,10 +8,10 @@ from typing import TYPE_CHECKING, TextIO
 from .output import warn
 
 if TYPE_CHECKING:
-    from ..intrinsics.calibrate import GroupCalibration, SkippedGroup
+    from ..intrinsics.results import CameraCalibration, SkippedGroup
 
 
-def print_table(results: list[GroupCalibration], skipped: list[SkippedGroup], out: TextIO) -> None:
+def print_table(results: list[CameraCalibration], skipped: list[SkippedGroup], out: TextIO) -> None:
     """One line per camera group to ``out``; warnings and skipped groups to stderr."""
     from ..database.camera_groups import format_ids
 
@@ -36,7 +36,7 @@ def print_table(results: list[GroupCalibration], skipped: list[SkippedGroup], ou
         warn(group.message())
 
 
-def print_comparisons(results: list[GroupCalibration], out: TextIO) -> None:
+def print_comparisons(results: list[CameraCalibration], out: TextIO) -> None:
     """Each group's estimate (± std) beside the model's own intrinsics, to ``out``."""
     for r in results:
         print(f"\ncamera {r.camera_id}: the estimate beside the model's own intrinsics", file=out)

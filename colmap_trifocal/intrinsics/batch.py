@@ -24,8 +24,8 @@ from .calibrate import (
     reconstruction_groups,
     write_calibrations,
 )
-from .group_results import GroupCalibration, SkippedGroup
 from .options import CalibrationOptions
+from .results import CameraCalibration, SkippedGroup
 
 
 def is_model_folder(path: Path) -> bool:
@@ -53,7 +53,7 @@ def calibrate_path(
     path: Path,
     options: CalibrationOptions,
     check_contents: Callable[[DatabaseContents], None] | None = None,
-) -> tuple[list[GroupCalibration], list[SkippedGroup]]:
+) -> tuple[list[CameraCalibration], list[SkippedGroup]]:
     """Calibrate a database, or a model folder from its tracks (never written here).
 
     ``check_contents`` sees a database's contents before the calibration (it raises

@@ -131,7 +131,7 @@ def calibrate_reconstruction(
 def reconstruction_groups(
     reconstruction: pycolmap.Reconstruction | Path | str,
     options: CalibrationOptions | None = None,
-) -> tuple[list[GroupCalibration], list[SkippedGroup]]:
+) -> tuple[list[CameraCalibration], list[SkippedGroup]]:
     """:func:`calibrate_reconstruction`'s results, and the groups it skipped."""
     options = _checked_options(options)
     if options.write:
