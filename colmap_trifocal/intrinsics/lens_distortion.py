@@ -18,7 +18,8 @@ the camera, keep those with λ < τ², adjust them together with the camera free
 distortion counts as present when the likelihood ratio of the fits with and without
 it, ``(C₀ − C_k) / σ²``, exceeds the χ² quantile ``1 − SIGNIFICANCE`` of its number of
 parameters; the std comes from pycolmap's covariance of the adjustment
-(:func:`pycolmap.estimate_ba_covariance`), scaled by σ² of the residuals, or for
+(:func:`pycolmap.estimate_ba_covariance`, each triplet's scale fixed by one of its
+points), scaled by σ² of the residuals, or for
 ``SIMPLE_RADIAL`` / ``RADIAL`` the delete-a-group-of-images jackknife where it is larger
 (as the polish's, :mod:`.triplet_bundle`).
 
@@ -55,6 +56,9 @@ SIGNIFICANCE = 0.05
 #: ... and in a pinhole camera, where the finding is only a warning and OPENCV's
 #: tangential terms (p1, p2) also take up systematic errors that are not the lens's.
 PINHOLE_SIGNIFICANCE = 1e-6
+#: Tracks per triplet at most (evenly spaced among its inliers): the distortion is
+#: read from where the tracks lie across the image, which 150 per triplet cover.
+MAX_TRACKS = 150
 #: Triplets that must agree before the distortion is estimated at all.
 MIN_TRIPLETS = 2
 #: Models whose distortion is radial only, with a single focal length: the jackknife
@@ -151,7 +155,7 @@ def estimate_distortion(
     _, refine_focal, refine_principal_point = setup
     intrinsics = np.asarray(estimate, float).copy()
     size = (camera.width, camera.height)
-    observed = observed_tracks(tensors, tracks, start)
+    observed = observed_tracks(tensors, tracks, start, MAX_TRACKS)
     shared = _shared_camera(observed, start, intrinsics, camera_model, size)
     if shared is None:
         return None
@@ -171,9 +175,8 @@ def estimate_distortion(
             if not shared.adjust(agreeing, refine_focal, refine_principal_point, True):
                 return None
         without = _cost_without_distortion(shared, agreeing, refine_focal, refine_principal_point)
-        adjuster = shared.adjuster(agreeing, refine_focal, refine_principal_point, True)
-        if not adjuster.solve().is_solution_usable():
-            return None
+        # At the optimum already: the covariance of the adjustment with its gauge fixed.
+        adjuster = shared.adjuster(agreeing, refine_focal, refine_principal_point, True, True)
         covariance = pycolmap.estimate_ba_covariance(
             pycolmap.BACovarianceOptions(), shared.reconstruction, adjuster
         )

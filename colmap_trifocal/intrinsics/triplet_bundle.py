@@ -188,7 +188,10 @@ class _Observed:
 
 
 def observed_tracks(
-    tensors: list[TripletTensor], tracks: dict[tuple[int, int, int], np.ndarray], start: np.ndarray
+    tensors: list[TripletTensor],
+    tracks: dict[tuple[int, int, int], np.ndarray],
+    start: np.ndarray,
+    max_tracks: int = MAX_TRACKS,
 ) -> list[_Observed]:
     """Each tensor's inlier tracks (at most ``MAX_TRACKS``, evenly spaced) and their
     projective cost, from a projective bundle adjustment warm-started at its cameras.
@@ -198,7 +201,7 @@ def observed_tracks(
     """
     observed = []
     for index, tensor in enumerate(tensors):
-        pixels = _inlier_pixels(tensor, tracks)
+        pixels = _inlier_pixels(tensor, tracks, max_tracks)
         if pixels.shape[1] <= _PROJECTIVE_PARAMETERS // 3:
             continue
         fit = refine_triplet(
@@ -305,12 +308,14 @@ class _SharedCamera:
         refine_focal: bool,
         refine_principal_point: bool,
         refine_distortion: bool = False,
+        fix_scale: bool = False,
     ) -> pycolmap.CeresBundleAdjuster:
         """pycolmap's bundle adjuster of the triplets ``which`` (positions in
         ``self.triplets``): poses and points, the camera's parameters as asked.
 
         Each triplet's first pose is held; its scale is a gauge direction that Ceres'
-        damping handles.
+        damping handles, or, with ``fix_scale`` (for a covariance, which needs a problem
+        without gauge freedom), that its first point holds.
         """
         config = pycolmap.BundleAdjustmentConfig()
         for position in which:
@@ -319,6 +324,8 @@ class _SharedCamera:
                 config.add_image(image_id)
             first = self.reconstruction.images[triplet.image_ids[0]]
             config.set_constant_rig_from_world_pose(first.frame_id)
+            if fix_scale:
+                config.add_constant_point(int(triplet.point_ids[0]))
         if not (refine_focal or refine_principal_point or refine_distortion):
             config.set_constant_cam_intrinsics(_CAMERA_ID)
         options = bundle_adjustment_options(
@@ -547,13 +554,15 @@ def _one_step_jackknife_std(
 
 
 def _inlier_pixels(
-    tensor: TripletTensor, tracks: dict[tuple[int, int, int], np.ndarray]
+    tensor: TripletTensor,
+    tracks: dict[tuple[int, int, int], np.ndarray],
+    max_tracks: int = MAX_TRACKS,
 ) -> np.ndarray:
-    """A tensor's inlier tracks (3, n, 2) in pixels, at most ``MAX_TRACKS`` evenly spaced."""
+    """A tensor's inlier tracks (3, n, 2) in pixels, at most ``max_tracks`` evenly spaced."""
     pixels = tracks[tensor.image_ids][:, tensor.inliers]
     n = pixels.shape[1]
-    if n > MAX_TRACKS:
-        pixels = pixels[:, np.linspace(0, n - 1, MAX_TRACKS).round().astype(int)]
+    if n > max_tracks:
+        pixels = pixels[:, np.linspace(0, n - 1, max_tracks).round().astype(int)]
     return pixels
 
 
