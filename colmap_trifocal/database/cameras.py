@@ -146,6 +146,13 @@ class CameraInfo:
             self.camera_id, self.model, self.width, self.height, params, self.has_prior_focal_length
         )
 
+    @classmethod
+    def blank(cls, model: str, camera_id: int = 1) -> CameraInfo:
+        """A 1x1 camera of ``model`` with every parameter 0 (its layout, e.g. how many
+        distortion parameters the model has)."""
+        count = len(pycolmap.Camera.create_from_model_name(camera_id, model, 1.0, 1, 1).params)
+        return cls(camera_id, model, 1, 1, np.zeros(count))
+
     def with_distortion(self, distortion: list[float] | np.ndarray) -> CameraInfo:
         """A copy with the model's extra (distortion) parameters replaced, COLMAP's order."""
         params = self.params.copy()

@@ -207,6 +207,7 @@ def _calibrate_method(
                 fallback.free_parameters,
                 camera,
                 options.tau,
+                fallback.solution.inlier_tensors,
             )
     with clock("assessment"):
         result = assess(

@@ -42,11 +42,14 @@ from ..geometry.tensor_estimation import TripletTensor
 from .bundle_information import reduced_information
 from .parametrization import FreeParameters
 from .triplet_bundle import (
+    _inlier_pixels,
     _one_step_jackknife_std,
     _shared_camera,
     _SharedCamera,
+    calibrated_cameras,
     observed_tracks,
     pycolmap_camera_setup,
+    triangulate,
 )
 
 #: Probability that the test finds distortion in an undistorted lens (χ² tail): low
@@ -56,9 +59,12 @@ SIGNIFICANCE = 0.05
 #: ... and in a pinhole camera, where the finding is only a warning and OPENCV's
 #: tangential terms (p1, p2) also take up systematic errors that are not the lens's.
 PINHOLE_SIGNIFICANCE = 1e-6
+#: The screen skips the adjustment where one Gauss–Newton step predicts a likelihood
+#: ratio below this fraction of the test's one-parameter threshold.
+SCREEN_FACTOR = 0.5
 #: Tracks per triplet at most (evenly spaced among its inliers): the distortion is
-#: read from where the tracks lie across the image, which 150 per triplet cover.
-MAX_TRACKS = 150
+#: read from where the tracks lie across the image, which 300 per triplet cover.
+MAX_TRACKS = 300
 #: Triplets that must agree before the distortion is estimated at all.
 MIN_TRIPLETS = 2
 #: Models whose distortion is radial only, with a single focal length: the jackknife
@@ -83,7 +89,11 @@ class LensDistortion:
         statistic: likelihood ratio ``(C₀ − C_k) / σ²`` of the fits without and with
             the distortion (χ² with k degrees of freedom where the lens has none).
         threshold: the statistic above which the distortion counts as present.
-        agreeing: triplets adjusted together.
+        agreeing: triplets adjusted together (with ``screened``: the tensors the
+            screen read).
+        screened: the adjustment was not run: the screen's statistic (``statistic``,
+            one Gauss–Newton step) showed no sign of distortion; ``distortion`` is 0
+            and the std unknown (NaN).
     """
 
     camera_model: str
@@ -94,6 +104,7 @@ class LensDistortion:
     statistic: float
     threshold: float
     agreeing: int
+    screened: bool = False
 
     @property
     def present(self) -> bool:
@@ -106,7 +117,8 @@ class LensDistortion:
             "camera_model": self.camera_model,
             "present": self.present,
             "params": [float(v) for v in self.distortion],
-            "std": [float(v) for v in self.distortion_std],
+            "std": [float(v) if np.isfinite(v) else None for v in self.distortion_std],
+            "screened": self.screened,
             "statistic": float(self.statistic),
             "threshold": float(self.threshold),
             "agreeing": self.agreeing,
@@ -130,6 +142,7 @@ def estimate_distortion(
     free_parameters: FreeParameters,
     camera: CameraInfo,
     tau: float,
+    agreeing_tensors: np.ndarray | None = None,
 ) -> LensDistortion | None:
     """The camera's distortion, focal length and principal point from its triplets.
 
@@ -141,6 +154,8 @@ def estimate_distortion(
         free_parameters: which of (fx, fy, cx, cy) are estimated (held ones stay).
         camera: the stored camera (model, size, distortion).
         tau: the MSAC threshold; triplets with ``λ < τ²`` agree.
+        agreeing_tensors: (n,) bool, the tensors that agree with ``estimate`` (the
+            screen reads only those; default all).
 
     Returns None when the distortion is taken as stored, the solve's model is not
     expressible in pycolmap (one principal-point coordinate held) or estimates
@@ -154,7 +169,27 @@ def estimate_distortion(
         return None
     _, refine_focal, refine_principal_point = setup
     intrinsics = np.asarray(estimate, float).copy()
+    if camera.single_focal:
+        intrinsics[1] = intrinsics[0]
     size = (camera.width, camera.height)
+    significance = SIGNIFICANCE if camera_model == camera.model else PINHOLE_SIGNIFICANCE
+    mask = np.ones(len(tensors), bool) if agreeing_tensors is None else agreeing_tensors
+    screen_tensors = [t for t, keep in zip(tensors, mask, strict=True) if keep]
+    screened = _screen(screen_tensors, tracks, start, intrinsics, setup, camera, camera_model)
+    if screened is not None and screened < SCREEN_FACTOR * chi2.isf(significance, 1):
+        # Freeing k would not lower the cost by a fraction of what counts: not run.
+        zeros = np.zeros(len(CameraInfo.blank(camera_model).distortion))
+        return LensDistortion(
+            camera_model=camera_model,
+            intrinsics=intrinsics,
+            intrinsics_std=np.full(4, np.nan),
+            distortion=zeros,
+            distortion_std=np.full(len(zeros), np.nan),
+            statistic=screened,
+            threshold=float(chi2.isf(significance, len(zeros))),
+            agreeing=len(screen_tensors),
+            screened=True,
+        )
     observed = observed_tracks(tensors, tracks, start, MAX_TRACKS)
     shared = _shared_camera(observed, start, intrinsics, camera_model, size)
     if shared is None:
@@ -202,12 +237,7 @@ def estimate_distortion(
         distortion=params[extra],
         distortion_std=distortion_std,
         statistic=(without - with_distortion) / variance,
-        threshold=float(
-            chi2.isf(
-                SIGNIFICANCE if camera_model == camera.model else PINHOLE_SIGNIFICANCE,
-                len(extra),
-            )
-        ),
+        threshold=float(chi2.isf(significance, len(extra))),
         agreeing=len(agreeing),
     )
 
@@ -291,3 +321,63 @@ def _jackknife_std(
         np.array(columns).T,
         groups,
     )
+
+
+def _screen(
+    tensors: list[TripletTensor],
+    tracks: dict[tuple[int, int, int], np.ndarray],
+    start: np.ndarray,
+    intrinsics: np.ndarray,
+    setup: tuple[str, bool, bool],
+    camera: CameraInfo,
+    camera_model: str,
+) -> float | None:
+    """The likelihood ratio of freeing k1, predicted without an adjustment (a score test).
+
+    Each tensor's calibrated cameras at ``intrinsics`` and its triangulated tracks give
+    its Schur complement and gradient on (fx, fy, cx, cy, k1) at k1 = 0
+    (:func:`.bundle_information.reduced_information`); summed over the tensors, one
+    Gauss–Newton step predicts how much the squared error falls with k1 free beyond
+    what the intrinsics alone take, over σ². Milliseconds per tensor. None where it
+    cannot be formed.
+    """
+    _, refine_focal, refine_principal_point = setup
+    information, gradient = np.zeros((5, 5)), np.zeros(5)
+    cost, observations, unknowns = 0.0, 0, 0
+    for tensor in tensors:
+        pixels = _inlier_pixels(tensor, tracks, MAX_TRACKS)
+        normalised = (pixels - intrinsics[2:]) / intrinsics[:2]
+        cameras = calibrated_cameras(tensor, normalised, start, intrinsics)
+        if cameras is None or not np.all(np.isfinite(cameras)):
+            continue
+        points = triangulate(cameras, normalised)
+        H, g, c = reduced_information(intrinsics, cameras, points, pixels, np.zeros(1))
+        if not (np.all(np.isfinite(H)) and np.all(np.isfinite(g)) and np.isfinite(c)):
+            continue
+        information += H
+        gradient += g
+        cost += c
+        observations += 6 * pixels.shape[1]
+        unknowns += 3 * pixels.shape[1] + 11
+    columns = []
+    if refine_focal:
+        if camera_model in _RADIAL_MODELS or camera.single_focal:
+            columns.append([1.0, 1.0, 0.0, 0.0, 0.0])
+        else:
+            columns += [[1.0, 0, 0, 0, 0], [0, 1.0, 0, 0, 0]]
+    if refine_principal_point:
+        columns += [[0, 0, 1.0, 0, 0], [0, 0, 0, 1.0, 0]]
+    with_k = np.array([*columns, [0, 0, 0, 0, 1.0]]).T
+    if observations <= unknowns + with_k.shape[1]:
+        return None
+    variance = cost / (observations - unknowns - with_k.shape[1])
+
+    def decrease(directions: np.ndarray) -> float:
+        if directions.size == 0:
+            return 0.0
+        reduced = directions.T @ information @ directions
+        step = np.linalg.lstsq(reduced, directions.T @ gradient, rcond=None)[0]
+        return float((directions.T @ gradient) @ step)
+
+    without_k = with_k[:, :-1]
+    return (decrease(with_k) - decrease(without_k)) / variance
