@@ -268,11 +268,16 @@ def _solved(
     options: CalibrationOptions,
     clock: StageClock,
 ) -> Attempt:
-    """The solve of ``tensors``; the disagreeing ones refined from both starts and solved again."""
+    """The solve of ``tensors``; the disagreeing ones refined from both starts and solved
+    again, where enough tensors agree to say which K the second start is from (with fewer
+    than ``MIN_AGREEING`` the start is as doubtful as the tensors: other starts follow)."""
     with clock("solve"):
         fallback = _solve(candidate, tensors, data, method, options)
+    inliers = fallback.solution.inlier_tensors
+    if inliers.sum() < min(MIN_AGREEING, len(inliers)):
+        return Attempt(candidate, tensors, fallback)
     with clock("tensors"):
-        second = estimator.with_second_starts(tensors, ~fallback.solution.inlier_tensors)
+        second = estimator.with_second_starts(tensors, ~inliers)
     if second is not None:
         tensors = second
         with clock("solve"):
