@@ -273,11 +273,10 @@ def _solved(
     than ``MIN_AGREEING`` the start is as doubtful as the tensors: other starts follow)."""
     with clock("solve"):
         fallback = _solve(candidate, tensors, data, method, options)
-    inliers = fallback.solution.inlier_tensors
-    if inliers.sum() < min(MIN_AGREEING, len(inliers)):
+    if not _consensus(fallback):
         return Attempt(candidate, tensors, fallback)
     with clock("tensors"):
-        second = estimator.with_second_starts(tensors, ~inliers)
+        second = estimator.with_second_starts(tensors, ~fallback.solution.inlier_tensors)
     if second is not None:
         tensors = second
         with clock("solve"):
@@ -315,14 +314,20 @@ def _nothing_agrees(attempt: Attempt, method: str) -> bool:
     """Whether fewer than ``MIN_AGREEING`` tensors agree with the estimate of a robust
     method that estimated something: the tracks single out no K (strong unmodelled
     lens distortion, wrong matches, no parallax), and the start is the best evidence
-    the run has. One or two tensors among many that agree with a K are as likely to
-    agree by chance as because it is the camera's."""
-    total = len(attempt.fallback.solution.inlier_tensors)
+    the run has."""
     return (
         method != "direct"
         and attempt.fallback.free_parameters.dimension > 0
-        and attempt.agreeing < min(MIN_AGREEING, total)
+        and not _consensus(attempt.fallback)
     )
+
+
+def _consensus(fallback: FallbackSolution) -> bool:
+    """Whether at least ``MIN_AGREEING`` tensors (all, when there are fewer) agree with
+    the estimate: one or two tensors among many that agree with a K are as likely to
+    agree by chance as because it is the camera's."""
+    inliers = fallback.solution.inlier_tensors
+    return int(inliers.sum()) >= min(MIN_AGREEING, len(inliers))
 
 
 def _checked_estimate(best: Attempt, camera_id: int, method: str) -> np.ndarray:

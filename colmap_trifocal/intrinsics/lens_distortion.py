@@ -42,14 +42,13 @@ from ..geometry.tensor_estimation import TripletTensor
 from .bundle_information import reduced_information
 from .parametrization import FreeParameters
 from .triplet_bundle import (
-    _inlier_pixels,
     _one_step_jackknife_std,
+    _refined_directions,
     _shared_camera,
     _SharedCamera,
-    calibrated_cameras,
+    calibrated_information,
     observed_tracks,
     pycolmap_camera_setup,
-    triangulate,
 )
 
 #: Probability that the test finds distortion in an undistorted lens (χ² tail): low
@@ -308,17 +307,14 @@ def _jackknife_std(
         triplet = shared.triplets[position]
         poses, points = shared.poses_and_points(triplet)
         parts.append(reduced_information(fitted.intrinsics, poses, points, triplet.pixels, radial))
-    q = 4 + len(radial)
-    columns = [np.r_[1.0, 1.0, np.zeros(q - 2)]]  # the single focal length
-    if refine_principal_point:
-        columns += [np.eye(q)[2], np.eye(q)[3]]
-    columns += [np.eye(q)[4 + i] for i in range(len(radial))]
+    # The radial models have a single focal length, refined with the distortion.
+    free = _refined_directions(True, True, refine_principal_point, extra=len(radial))
     groups = [tensors[shared.triplets[p].index].image_ids for p in agreeing]
     return _one_step_jackknife_std(
         np.r_[fitted.intrinsics, radial],
         np.stack([h for h, _, _ in parts]),
         np.stack([g for _, g, _ in parts]),
-        np.array(columns).T,
+        free,
         groups,
     )
 
@@ -342,32 +338,20 @@ def _screen(
     cannot be formed.
     """
     _, refine_focal, refine_principal_point = setup
-    information, gradient = np.zeros((5, 5)), np.zeros(5)
-    cost, observations, unknowns = 0.0, 0, 0
-    for tensor in tensors:
-        pixels = _inlier_pixels(tensor, tracks, MAX_TRACKS)
-        normalised = (pixels - intrinsics[2:]) / intrinsics[:2]
-        cameras = calibrated_cameras(tensor, normalised, start, intrinsics)
-        if cameras is None or not np.all(np.isfinite(cameras)):
-            continue
-        points = triangulate(cameras, normalised)
-        H, g, c = reduced_information(intrinsics, cameras, points, pixels, np.zeros(1))
-        if not (np.all(np.isfinite(H)) and np.all(np.isfinite(g)) and np.isfinite(c)):
-            continue
-        information += H
-        gradient += g
-        cost += c
-        observations += 6 * pixels.shape[1]
-        unknowns += 3 * pixels.shape[1] + 11
-    columns = []
-    if refine_focal:
-        if camera_model in _RADIAL_MODELS or camera.single_focal:
-            columns.append([1.0, 1.0, 0.0, 0.0, 0.0])
-        else:
-            columns += [[1.0, 0, 0, 0, 0], [0, 1.0, 0, 0, 0]]
-    if refine_principal_point:
-        columns += [[0, 0, 1.0, 0, 0], [0, 0, 0, 1.0, 0]]
-    with_k = np.array([*columns, [0, 0, 0, 0, 1.0]]).T
+    parts = [
+        part
+        for part in calibrated_information(
+            tensors, tracks, start, intrinsics, np.zeros(1), MAX_TRACKS
+        )
+        if np.isfinite(part.cost)
+    ]
+    information = sum((part.information for part in parts), np.zeros((5, 5)))
+    gradient = sum((part.gradient for part in parts), np.zeros(5))
+    cost = sum(part.cost for part in parts)
+    observations = sum(6 * part.num_tracks for part in parts)
+    unknowns = sum(3 * part.num_tracks + 11 for part in parts)
+    tied = camera_model in _RADIAL_MODELS or camera.single_focal
+    with_k = _refined_directions(tied, refine_focal, refine_principal_point, extra=1)
     if observations <= unknowns + with_k.shape[1]:
         return None
     variance = cost / (observations - unknowns - with_k.shape[1])

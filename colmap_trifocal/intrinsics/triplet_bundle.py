@@ -47,6 +47,7 @@ has no batch call for tracks.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -460,7 +461,9 @@ def polish_intrinsics(
             return None
         intrinsics = shared.intrinsics()
     information, gradients, costs = shared.information(agreeing)
-    free = _refined_directions(camera_model, refine_focal, refine_principal_point)
+    free = _refined_directions(
+        camera_model == "SIMPLE_PINHOLE", refine_focal, refine_principal_point
+    )
     observations = sum(6 * len(shared.triplets[p].point_ids) for p in agreeing)
     unknowns = sum(3 * len(shared.triplets[p].point_ids) + 11 for p in agreeing)
     variance = float(costs.sum()) / max(observations - unknowns - free.shape[1], 1)
@@ -505,28 +508,58 @@ def predicted_jackknife_std(
     if start_values is None or not tensors:
         return None
     camera_model, refine_focal, refine_principal_point, intrinsics = start_values
-    parts, groups = [], []
+    parts = list(calibrated_information(tensors, tracks, start, intrinsics))
+    if not parts:
+        return None
+    free = _refined_directions(
+        camera_model == "SIMPLE_PINHOLE", refine_focal, refine_principal_point
+    )
+    return _one_step_jackknife_std(
+        intrinsics,
+        np.stack([part.information for part in parts]),
+        np.stack([part.gradient for part in parts]),
+        free,
+        [part.tensor.image_ids for part in parts],
+    )
+
+
+@dataclass
+class TripletInformation:
+    """What one tensor's tracks say about the camera, without an adjustment: its
+    calibrated cameras at K, its tracks triangulated, their Schur complement."""
+
+    tensor: TripletTensor
+    information: np.ndarray  # (q, q) on (fx, fy, cx, cy[, k...])
+    gradient: np.ndarray  # (q,)
+    cost: float  # Σ r², px²
+    num_tracks: int
+
+
+def calibrated_information(
+    tensors: list[TripletTensor],
+    tracks: dict[tuple[int, int, int], np.ndarray],
+    start: np.ndarray,
+    intrinsics: np.ndarray,
+    radial: np.ndarray | None = None,
+    max_tracks: int = MAX_TRACKS,
+) -> Iterator[TripletInformation]:
+    """Each tensor's information on the camera at ``intrinsics`` (pixels; with ``radial``
+    also on its radial coefficients, :func:`.bundle_information.reduced_information`),
+    from its calibrated cameras (:func:`calibrated_cameras`) and its tracks (at most
+    ``max_tracks``) triangulated; tensors where either cannot be formed are left out.
+    Milliseconds per tensor."""
     for tensor in tensors:
-        pixels = _inlier_pixels(tensor, tracks)
+        pixels = _inlier_pixels(tensor, tracks, max_tracks)
         normalised = (pixels - intrinsics[2:]) / intrinsics[:2]
         cameras = calibrated_cameras(tensor, normalised, start, intrinsics)
         if cameras is None or not np.all(np.isfinite(cameras)):
             continue
         points = triangulate(cameras, normalised)
-        information, gradient, _ = reduced_information(intrinsics, cameras, points, pixels)
+        information, gradient, cost = reduced_information(
+            intrinsics, cameras, points, pixels, radial
+        )
         if np.all(np.isfinite(information)) and np.all(np.isfinite(gradient)):
-            parts.append((information, gradient))
-            groups.append(tensor.image_ids)
-    if not parts:
-        return None
-    free = _refined_directions(camera_model, refine_focal, refine_principal_point)
-    return _one_step_jackknife_std(
-        intrinsics,
-        np.stack([h for h, _ in parts]),
-        np.stack([g for _, g in parts]),
-        free,
-        groups,
-    )
+            yield TripletInformation(tensor, information, gradient, cost, pixels.shape[1])
 
 
 def _one_step_jackknife_std(
@@ -582,18 +615,20 @@ def _camera_start(
 
 
 def _refined_directions(
-    camera_model: str, refine_focal: bool, refine_principal_point: bool
+    tied: bool, refine_focal: bool, refine_principal_point: bool, extra: int = 0
 ) -> np.ndarray:
-    """A (4, k): (fx, fy, cx, cy) = A p for the k parameters the adjustment refined."""
+    """A (4 + extra, k): (fx, fy, cx, cy, extra parameters) = A p for the k parameters an
+    adjustment refines: one focal length (``tied``) or two, the principal point, and
+    each of the ``extra`` (distortion) parameters."""
+    q = 4 + extra
+    unit = np.eye(q)
     columns = []
     if refine_focal:
-        if camera_model == "SIMPLE_PINHOLE":
-            columns.append([1.0, 1.0, 0.0, 0.0])
-        else:
-            columns += [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]]
+        columns += [unit[0] + unit[1]] if tied else [unit[0], unit[1]]
     if refine_principal_point:
-        columns += [[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
-    return np.array(columns).T
+        columns += [unit[2], unit[3]]
+    columns += [unit[4 + i] for i in range(extra)]
+    return np.array(columns).reshape(-1, q).T
 
 
 def _shared_camera(
