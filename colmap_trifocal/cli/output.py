@@ -11,12 +11,11 @@ import contextlib
 import ctypes
 import os
 import sys
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
 from ..common.errors import CalibrationError
-from ..common.files import file_identity, write_text_atomically
+from ..common.files import can_create_in, file_identity, write_text_atomically
 
 #: Exit status of a refused input (after one ``error:`` line on stderr).
 EXIT_INPUT_ERROR = 2
@@ -106,7 +105,7 @@ def check_output_file(path: Path, option: str) -> None:
     folder = Path(os.path.realpath(path)).parent
     if not folder.is_dir():
         raise CalibrationError(f"cannot write {option}: folder {folder} does not exist")
-    if not _can_create_in(folder):  # the new file is made next to it, then renamed
+    if not can_create_in(folder):  # the new file is made next to it, then renamed
         raise CalibrationError(f"cannot write {option}: folder {folder} is not writable")
 
 
@@ -120,20 +119,8 @@ def check_output_folder(path: Path, option: str) -> None:
         existing = existing.parent
     if not existing.is_dir():
         raise CalibrationError(f"cannot write {option}: {existing} is not a folder")
-    if not _can_create_in(existing):
+    if not can_create_in(existing):
         raise CalibrationError(f"cannot write {option}: folder {existing} is not writable")
-
-
-def _can_create_in(folder: Path) -> bool:
-    """A file can be created in ``folder``: tried with a hidden temporary file, removed at
-    once (permission bits say nothing for root, nor on a read-only file system)."""
-    try:
-        fd, probe = tempfile.mkstemp(dir=folder, prefix=".colmap-trifocal.", suffix=".probe")
-    except OSError:
-        return False
-    os.close(fd)
-    os.unlink(probe)
-    return True
 
 
 def write_text_output(path: Path, text: str, to_stdout: bool) -> None:

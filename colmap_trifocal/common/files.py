@@ -155,6 +155,18 @@ def _real_ancestors(path: Path) -> list[Path]:
     return [real, *real.parents]
 
 
+def can_create_in(folder: Path) -> bool:
+    """A file can be created in ``folder``: tried with a hidden temporary file, removed at
+    once (permission bits say nothing for root, nor on a read-only file system)."""
+    try:
+        fd, probe = tempfile.mkstemp(dir=folder, prefix=".colmap-trifocal.", suffix=".probe")
+    except OSError:
+        return False
+    os.close(fd)
+    os.unlink(probe)
+    return True
+
+
 def write_text_atomically(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` without ever leaving a truncated file behind.
 

@@ -23,6 +23,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from ..common.errors import CalibrationError
+from ..common.files import can_create_in
 
 #: What a run writes into the workspace (``--overwrite`` removes exactly these).
 WORKSPACE_OUTPUTS = ("database.db", "sparse", "report.json")
@@ -42,7 +43,7 @@ def open_workspace(workspace: Path, overwrite: bool) -> Iterator[Path]:
     if workspace.exists() and not workspace.is_dir():
         raise CalibrationError(f"workspace is not a folder: {workspace}")
     workspace.mkdir(parents=True, exist_ok=True)
-    if not os.access(workspace, os.W_OK | os.X_OK):  # also a read-only file system
+    if not can_create_in(workspace):
         raise CalibrationError(f"cannot write to workspace {workspace}: permission denied")
     with workspace_lock(workspace):
         prepare_workspace(workspace, overwrite)
