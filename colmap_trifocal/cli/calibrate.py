@@ -27,6 +27,8 @@ from .tables import print_table
 if TYPE_CHECKING:
     from collections.abc import Callable
 
+    import pycolmap
+
     from ..database.snapshot import DatabaseContents
     from ..intrinsics.calibrate import CalibrationOptions
 
@@ -149,9 +151,9 @@ def _run_database(args: argparse.Namespace, database: Path, options: Calibration
     from ..intrinsics.batch import calibrate_path
     from ..intrinsics.calibrate import updated_cameras, write_calibrations
 
-    _check_arguments(args, database)
+    model = _check_arguments(args, database)
     json_to_stdout = args.json is not None and is_stdout(args.json)
-    results, skipped = calibrate_path(database, options, _model_check(args))
+    results, skipped = calibrate_path(database, options, _model_check(args, model))
     # With the JSON on stdout, the table and messages go to stderr: stdout stays JSON.
     out = sys.stderr if json_to_stdout else sys.stdout
     print_table(results, skipped, out)
@@ -165,6 +167,7 @@ def _run_database(args: argparse.Namespace, database: Path, options: Calibration
             updated_cameras(results),
             args.refine or "ba",
             args.refine_distortion,
+            model,
         )
         print(update.describe(), file=out)
     if args.json is not None:
@@ -203,23 +206,25 @@ def _options(args: argparse.Namespace) -> CalibrationOptions:
     )
 
 
-def _model_check(args: argparse.Namespace) -> Callable[[DatabaseContents], None] | None:
-    """With ``--model``: refuse a model whose images are not the database's."""
-    if args.model is None:
+def _model_check(
+    args: argparse.Namespace, model: pycolmap.Reconstruction | None
+) -> Callable[[DatabaseContents], None] | None:
+    """With ``--model`` (read as ``model``): refuse a model whose images are not the
+    database's."""
+    if model is None:
         return None
     from ..reconstruction import into_model
 
     def check(contents: DatabaseContents) -> None:
-        into_model.check_model_images(
-            into_model.read_model(args.model), contents.image_names.values(), args.model
-        )
+        into_model.check_model_images(model, contents.image_names.values(), args.model)
 
     return check
 
 
-def _check_arguments(args: argparse.Namespace, database: Path) -> None:
+def _check_arguments(args: argparse.Namespace, database: Path) -> pycolmap.Reconstruction | None:
     """The flags that go together, and every output: writable, and no input overwritten
-    (the database itself is the one output of ``--write``)."""
+    (the database itself is the one output of ``--write``). Returns the ``--model``,
+    read now (a one-line error before the calibration), or None."""
     from ..database.writing import check_writable
 
     if (args.model is None) != (args.output is None):
@@ -230,12 +235,13 @@ def _check_arguments(args: argparse.Namespace, database: Path) -> None:
         raise CalibrationError("--refine-distortion needs --refine ba")
     inputs = [Input.database(database)]
     outputs = []
+    model = None
     if args.model is not None:
         from ..reconstruction import into_model
 
         into_model.check_output_folder(args.output, args.model)
         check_output_folder(args.output, "--output")
-        into_model.read_model(args.model)  # a one-line error now, not after the calibration
+        model = into_model.read_model(args.model)
         inputs.append(Input.folder(args.model, "--model"))
         outputs.append(Output("--output", args.output, folder=True))
     if args.json is not None:
@@ -245,3 +251,4 @@ def _check_arguments(args: argparse.Namespace, database: Path) -> None:
     refuse_outputs_over_inputs(outputs, inputs)
     if args.write:  # refuse a read-only database now, not after the calibration
         check_writable(database)
+    return model

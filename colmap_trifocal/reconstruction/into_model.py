@@ -136,6 +136,7 @@ def calibrate_model(
     cameras: dict[int, CameraInfo],
     refine: str = "ba",
     refine_distortion: bool = False,
+    reconstruction: pycolmap.Reconstruction | None = None,
 ) -> ModelUpdate:
     """Copy the model at ``model`` to ``output`` with ``cameras``' params, refined on request.
 
@@ -145,11 +146,14 @@ def calibrate_model(
         cameras: camera_id -> camera with the estimated intrinsics.
         refine: ``none`` or ``ba`` (see :func:`.mapping.refine_intrinsics`).
         refine_distortion: also refine the distortion parameters (with ``ba``).
+        reconstruction: the model as :func:`read_model` read it (changed here); read
+            from ``model`` when None.
     """
     if refine not in REFINE_CHOICES:
         raise CalibrationError(f"unknown --refine {refine!r} (choose from {REFINE_CHOICES})")
     check_output_folder(output, model)
-    reconstruction = read_model(model)
+    if reconstruction is None:
+        reconstruction = read_model(model)
     if reconstruction.num_reg_images() == 0:
         raise CalibrationError(f"the model has no registered images: {model}")
     given = reprojection_error(reconstruction)
