@@ -196,6 +196,7 @@ def _calibrate_method(
                 (camera.width, camera.height),
                 options.tau,
                 camera.camera_id,
+                options.workers,
             )
         lens = None
         if method == "msac-opt" and options.triplet_bundle:
@@ -208,6 +209,7 @@ def _calibrate_method(
                 camera,
                 options.tau,
                 fallback.solution.inlier_tensors,
+                options.workers,
             )
     with clock("assessment"):
         result = assess(

@@ -142,6 +142,7 @@ def estimate_distortion(
     camera: CameraInfo,
     tau: float,
     agreeing_tensors: np.ndarray | None = None,
+    workers: int | None = None,
 ) -> LensDistortion | None:
     """The camera's distortion, focal length and principal point from its triplets.
 
@@ -155,6 +156,7 @@ def estimate_distortion(
         tau: the MSAC threshold; triplets with ``λ < τ²`` agree.
         agreeing_tensors: (n,) bool, the tensors that agree with ``estimate`` (the
             screen reads only those; default all).
+        workers: threads for the per-triplet work (None: one per core).
 
     Returns None when the distortion is taken as stored, the solve's model is not
     expressible in pycolmap (one principal-point coordinate held) or estimates
@@ -174,7 +176,9 @@ def estimate_distortion(
     significance = SIGNIFICANCE if camera_model == camera.model else PINHOLE_SIGNIFICANCE
     mask = np.ones(len(tensors), bool) if agreeing_tensors is None else agreeing_tensors
     screen_tensors = [t for t, keep in zip(tensors, mask, strict=True) if keep]
-    screened = _screen(screen_tensors, tracks, start, intrinsics, setup, camera, camera_model)
+    screened = _screen(
+        screen_tensors, tracks, start, intrinsics, setup, camera, camera_model, workers
+    )
     if screened is not None and screened < SCREEN_FACTOR * chi2.isf(significance, 1):
         # Freeing k would not lower the cost by a fraction of what counts: not run.
         zeros = np.zeros(len(CameraInfo.blank(camera_model).distortion))
@@ -189,8 +193,8 @@ def estimate_distortion(
             agreeing=len(screen_tensors),
             screened=True,
         )
-    observed = observed_tracks(tensors, tracks, start, MAX_TRACKS)
-    shared = _shared_camera(observed, start, intrinsics, camera_model, size)
+    observed = observed_tracks(tensors, tracks, start, MAX_TRACKS, workers)
+    shared = _shared_camera(observed, start, intrinsics, camera_model, size, workers)
     if shared is None:
         return None
     everything = list(range(len(shared.triplets)))
@@ -327,6 +331,7 @@ def _screen(
     setup: tuple[str, bool, bool],
     camera: CameraInfo,
     camera_model: str,
+    workers: int | None = None,
 ) -> float | None:
     """The likelihood ratio of freeing k1, predicted without an adjustment (a score test).
 
@@ -341,7 +346,7 @@ def _screen(
     parts = [
         part
         for part in calibrated_information(
-            tensors, tracks, start, intrinsics, np.zeros(1), MAX_TRACKS
+            tensors, tracks, start, intrinsics, np.zeros(1), MAX_TRACKS, workers
         )
         if np.isfinite(part.cost)
     ]

@@ -86,6 +86,7 @@ def polish(
     size: tuple[int, int],
     tau: float,
     camera_id: int,
+    workers: int | None = None,
 ) -> Polished:
     """The polished estimate, or the constraint estimate with the reason it was kept.
 
@@ -97,6 +98,7 @@ def polish(
         agreeing: tensors that agree with ``estimate``.
         size: (width, height) of the images, pixels.
         tau: the MSAC threshold.
+        workers: threads for the per-triplet work (None: one per core).
     """
     unchanged = Polished(estimate, fallback.relative_std, agreeing, None)
     free_parameters = fallback.free_parameters
@@ -104,12 +106,14 @@ def polish(
         return unchanged
     focal_scale = np.array([start[0], start[1], start[0], start[1]])
     constraints = dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True))
-    skip = not_worth_it(tensors, tracks, start, estimate, fallback, focal_scale)
+    skip = not_worth_it(tensors, tracks, start, estimate, fallback, focal_scale, workers)
     if skip:
         logger.info("camera %d: bundle adjustment of the triplets not run: %s", camera_id, skip)
         not_run = {"used": False, "agreeing": None, "constraints": constraints, "rejected": skip}
         return Polished(estimate, fallback.relative_std, agreeing, not_run)
-    result = polish_intrinsics(tensors, tracks, start, estimate, free_parameters, size, tau)
+    result = polish_intrinsics(
+        tensors, tracks, start, estimate, free_parameters, size, tau, workers
+    )
     summary: dict[str, object] = {
         "used": False,
         "agreeing": None if result is None else int(result.agreeing.sum()),
@@ -139,11 +143,14 @@ def not_worth_it(
     estimate: np.ndarray,
     fallback: FallbackSolution,
     focal_scale: np.ndarray,
+    workers: int | None = None,
 ) -> str | None:
     """Why the polish cannot be kept, judged before it runs (see the module), or None."""
     if fallback.solution.jackknife is None or not np.all(fallback.solution.inlier_tensors):
         return None
-    predicted = predicted_jackknife_std(tensors, tracks, start, estimate, fallback.free_parameters)
+    predicted = predicted_jackknife_std(
+        tensors, tracks, start, estimate, fallback.free_parameters, workers
+    )
     if predicted is None:
         return None
     polish_variance, constraint_variance = _variances(predicted, focal_scale, fallback)

@@ -47,7 +47,6 @@ has no batch call for tracks.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -56,6 +55,7 @@ import pycolmap
 
 from ..common.bundle_adjustment import bundle_adjustment_options
 from ..common.log import keep_colmap_quiet
+from ..common.parallel import map_jobs
 from ..database.cameras import CameraInfo
 from ..geometry.projective_ba import refine_triplet
 from ..geometry.tensor_estimation import TripletTensor
@@ -193,31 +193,36 @@ def observed_tracks(
     tracks: dict[tuple[int, int, int], np.ndarray],
     start: np.ndarray,
     max_tracks: int = MAX_TRACKS,
+    workers: int | None = None,
 ) -> list[_Observed]:
     """Each tensor's inlier tracks (at most ``MAX_TRACKS``, evenly spaced) and their
-    projective cost, from a projective bundle adjustment warm-started at its cameras.
+    projective cost, from a projective bundle adjustment warm-started at its cameras
+    (over ``workers`` threads; None: one per core).
 
     The tensor's own noise estimate comes from the tracks its last refinement used,
     not these, so C_proj is measured on exactly the tracks λ compares.
     """
-    observed = []
-    for index, tensor in enumerate(tensors):
-        pixels = _inlier_pixels(tensor, tracks, max_tracks)
-        if pixels.shape[1] <= _PROJECTIVE_PARAMETERS // 3:
-            continue
-        fit = refine_triplet(
-            (pixels - start[2:]) / start[:2],
-            tensor.P2,
-            tensor.P3,
-            start[:2],
-            max_iterations=_PROJECTIVE_ITERATIONS,
-            tolerance=_PROJECTIVE_TOLERANCE,
-        )
-        cost = float(fit.squared_errors.sum())
-        if not (np.isfinite(cost) and fit.sigma > 0):
-            continue
-        observed.append(_Observed(index, tensor, pixels, cost, fit.sigma**2))
-    return observed
+    jobs = [(index, tensor, tracks, start, max_tracks) for index, tensor in enumerate(tensors)]
+    return [o for o in map_jobs(_observed_job, jobs, workers) if o is not None]
+
+
+def _observed_job(job: tuple) -> _Observed | None:
+    index, tensor, tracks, start, max_tracks = job
+    pixels = _inlier_pixels(tensor, tracks, max_tracks)
+    if pixels.shape[1] <= _PROJECTIVE_PARAMETERS // 3:
+        return None
+    fit = refine_triplet(
+        (pixels - start[2:]) / start[:2],
+        tensor.P2,
+        tensor.P3,
+        start[:2],
+        max_iterations=_PROJECTIVE_ITERATIONS,
+        tolerance=_PROJECTIVE_TOLERANCE,
+    )
+    cost = float(fit.squared_errors.sum())
+    if not (np.isfinite(cost) and fit.sigma > 0):
+        return None
+    return _Observed(index, tensor, pixels, cost, fit.sigma**2)
 
 
 @dataclass
@@ -414,6 +419,7 @@ def polish_intrinsics(
     free_parameters: FreeParameters,
     size: tuple[int, int],
     tau: float,
+    workers: int | None = None,
 ) -> TripletBundleResult | None:
     """The ML intrinsics of the agreeing triplets, from the constraint estimate.
 
@@ -426,6 +432,7 @@ def polish_intrinsics(
         free_parameters: what is estimated (see :func:`pycolmap_camera_setup`).
         size: (width, height) of the images, pixels.
         tau: the MSAC threshold; triplets with ``λ < τ²`` agree.
+        workers: threads for the per-triplet work (None: one per core).
 
     Returns None when ``free_parameters`` are not expressible, no triplet agrees, or
     Ceres fails.
@@ -435,8 +442,8 @@ def polish_intrinsics(
         return None
     camera_model, refine_focal, refine_principal_point, intrinsics = start_values
     limit = tau**2
-    observed = observed_tracks(tensors, tracks, start)
-    shared = _shared_camera(observed, start, intrinsics, camera_model, size)
+    observed = observed_tracks(tensors, tracks, start, workers=workers)
+    shared = _shared_camera(observed, start, intrinsics, camera_model, size, workers)
     if shared is None:
         return None
     everything = list(range(len(shared.triplets)))
@@ -495,6 +502,7 @@ def predicted_jackknife_std(
     start: np.ndarray,
     estimate: np.ndarray,
     free_parameters: FreeParameters,
+    workers: int | None = None,
 ) -> np.ndarray | None:
     """(4,) jackknife std of the polish (pixels) predicted from its first Gauss–Newton step.
 
@@ -508,7 +516,7 @@ def predicted_jackknife_std(
     if start_values is None or not tensors:
         return None
     camera_model, refine_focal, refine_principal_point, intrinsics = start_values
-    parts = list(calibrated_information(tensors, tracks, start, intrinsics))
+    parts = calibrated_information(tensors, tracks, start, intrinsics, workers=workers)
     if not parts:
         return None
     free = _refined_directions(
@@ -542,24 +550,29 @@ def calibrated_information(
     intrinsics: np.ndarray,
     radial: np.ndarray | None = None,
     max_tracks: int = MAX_TRACKS,
-) -> Iterator[TripletInformation]:
+    workers: int | None = None,
+) -> list[TripletInformation]:
     """Each tensor's information on the camera at ``intrinsics`` (pixels; with ``radial``
     also on its radial coefficients, :func:`.bundle_information.reduced_information`),
     from its calibrated cameras (:func:`calibrated_cameras`) and its tracks (at most
     ``max_tracks``) triangulated; tensors where either cannot be formed are left out.
-    Milliseconds per tensor."""
-    for tensor in tensors:
-        pixels = _inlier_pixels(tensor, tracks, max_tracks)
-        normalised = (pixels - intrinsics[2:]) / intrinsics[:2]
-        cameras = calibrated_cameras(tensor, normalised, start, intrinsics)
-        if cameras is None or not np.all(np.isfinite(cameras)):
-            continue
-        points = triangulate(cameras, normalised)
-        information, gradient, cost = reduced_information(
-            intrinsics, cameras, points, pixels, radial
-        )
-        if np.all(np.isfinite(information)) and np.all(np.isfinite(gradient)):
-            yield TripletInformation(tensor, information, gradient, cost, pixels.shape[1])
+    Milliseconds per tensor, over ``workers`` threads (None: one per core)."""
+    jobs = [(tensor, tracks, start, intrinsics, radial, max_tracks) for tensor in tensors]
+    return [part for part in map_jobs(_information_job, jobs, workers) if part is not None]
+
+
+def _information_job(job: tuple) -> TripletInformation | None:
+    tensor, tracks, start, intrinsics, radial, max_tracks = job
+    pixels = _inlier_pixels(tensor, tracks, max_tracks)
+    normalised = (pixels - intrinsics[2:]) / intrinsics[:2]
+    cameras = calibrated_cameras(tensor, normalised, start, intrinsics)
+    if cameras is None or not np.all(np.isfinite(cameras)):
+        return None
+    points = triangulate(cameras, normalised)
+    information, gradient, cost = reduced_information(intrinsics, cameras, points, pixels, radial)
+    if not (np.all(np.isfinite(information)) and np.all(np.isfinite(gradient))):
+        return None
+    return TripletInformation(tensor, information, gradient, cost, pixels.shape[1])
 
 
 def _one_step_jackknife_std(
@@ -637,12 +650,19 @@ def _shared_camera(
     intrinsics: np.ndarray,
     camera_model: str,
     size: tuple[int, int],
+    workers: int | None = None,
 ) -> _SharedCamera | None:
-    """Every triplet whose calibrated cameras can be formed at K, in one reconstruction."""
+    """Every triplet whose calibrated cameras can be formed at K, in one reconstruction
+    (the cameras over ``workers`` threads; None: one per core)."""
     shared = _SharedCamera(intrinsics, camera_model, *size)
-    for triplet in observed:
-        normalised = (triplet.pixels - intrinsics[2:]) / intrinsics[:2]
-        cameras = calibrated_cameras(triplet.tensor, normalised, start, intrinsics)
+    jobs = [(triplet, start, intrinsics) for triplet in observed]
+    for triplet, cameras in zip(observed, map_jobs(_cameras_job, jobs, workers), strict=True):
         if cameras is not None and np.all(np.isfinite(cameras)):
             shared.add(triplet, cameras)
     return shared if shared.triplets else None
+
+
+def _cameras_job(job: tuple) -> np.ndarray | None:
+    triplet, start, intrinsics = job
+    normalised = (triplet.pixels - intrinsics[2:]) / intrinsics[:2]
+    return calibrated_cameras(triplet.tensor, normalised, start, intrinsics)
