@@ -41,6 +41,7 @@ def assess(
     search: FocalSearchResult | None,
     tracks: list[np.ndarray],
     lens: LensDistortion | None = None,
+    workers: int | None = None,
 ) -> CameraCalibration:
     """The camera's result (``seconds`` 0: the caller sets them).
 
@@ -51,6 +52,7 @@ def assess(
         tracks: per triplet, its tracks (3, n, 2), pixels (for the diagnosis).
         lens: the distortion the triplets show (:mod:`.lens_distortion`), None when
             it was not estimated.
+        workers: threads for the diagnosis (None: one per core).
     """
     camera, free_parameters = data.camera, fallback.free_parameters
     focal_scale = np.array([start[0], start[1], start[0], start[1]])
@@ -99,7 +101,7 @@ def assess(
         source=source,
         focal_search=search_summary(search),
         diagnosis=_joined(
-            lens_note, None if all(observable.values()) else diagnose(tracks, estimate)
+            lens_note, None if all(observable.values()) else diagnose(tracks, estimate, workers)
         ),
         triplet_bundle=polished.summary,
         lens_distortion=None if lens is None else lens.summary(),

@@ -223,6 +223,7 @@ def _calibrate_method(
             search,
             tracks.tracks,
             lens,
+            options.workers,
         )
     result.seconds = clock.total
     result.stage_seconds = clock.as_dict()

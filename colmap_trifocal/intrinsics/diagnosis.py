@@ -30,6 +30,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..common.parallel import map_jobs
 from ..geometry.planarity import plane_homography
 from ..geometry.trifocal import intrinsics_matrix
 
@@ -56,6 +57,9 @@ def relative_motion(x1: np.ndarray, x2: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 #: Consecutive image pairs :func:`moves_forward` looks at (evenly spread).
 FORWARD_PAIRS = 12
+#: Matches per pair :func:`moves_forward` reads at most (evenly spaced): a relative
+#: translation's direction is as clear from 500 matches as from thousands.
+FORWARD_MAX_MATCHES = 500
 
 
 def moves_forward(
@@ -63,16 +67,19 @@ def moves_forward(
     matches: dict[tuple[int, int], np.ndarray],
     intrinsics: np.ndarray,
     min_matches: int = 30,
+    workers: int | None = None,
 ) -> bool:
     """Whether the camera moves along its optical axis between consecutive images.
 
     Over up to ``FORWARD_PAIRS`` pairs of consecutive image ids with ``min_matches``
-    verified matches: the median ``|t_z|`` of their relative translation (OpenCV's
-    essential matrix in coordinates normalised by ``intrinsics``, pixels) is at
-    least ``FORWARD_COSINE``. A drive or a walk-through video moves forward (its
-    adjacent frames barely differ, so triplets must span wider gaps); a turntable or
-    an orbit moves sideways (adjacent frames already do): the median ``|t_z|`` is
-    about 1 for a drive and near 0 for a turntable (docs/planar_and_sequences.md).
+    verified matches (at most ``FORWARD_MAX_MATCHES`` of each): the median ``|t_z|``
+    of their relative translation (OpenCV's essential matrix in coordinates
+    normalised by ``intrinsics``, pixels) is at least ``FORWARD_COSINE``. A drive or a
+    walk-through video moves forward (its adjacent frames barely differ, so triplets
+    must span wider gaps); a turntable or an orbit moves sideways (adjacent frames
+    already do): the median ``|t_z|`` is about 1 for a drive and near 0 for a
+    turntable (docs/planar_and_sequences.md). The pairs run over ``workers`` threads
+    (None: one per core).
     """
     ids = sorted(keypoints)
     consecutive = [
@@ -84,15 +91,23 @@ def moves_forward(
         return False
     chosen = np.unique(np.linspace(0, len(consecutive) - 1, FORWARD_PAIRS).round().astype(int))
     K_inv = np.linalg.inv(intrinsics_matrix(np.asarray(intrinsics, float)))
-    forward = []
+    jobs = []
     for a, b in (consecutive[i] for i in chosen):
         m = matches[(a, b)]
+        if len(m) > FORWARD_MAX_MATCHES:
+            m = m[np.linspace(0, len(m) - 1, FORWARD_MAX_MATCHES).round().astype(int)]
         x1 = _normalised(keypoints[a][m[:, 0], :2], K_inv)
         x2 = _normalised(keypoints[b][m[:, 1], :2], K_inv)
-        motion = relative_motion(x1, x2)
-        if motion is not None:
-            forward.append(abs(float(motion[1][2])))
+        jobs.append((x1, x2))
+    motions = map_jobs(_relative_motion_job, jobs, workers)
+    forward = [abs(float(motion[1][2])) for motion in motions if motion is not None]
     return bool(forward) and float(np.median(forward)) >= FORWARD_COSINE
+
+
+def _relative_motion_job(
+    job: tuple[np.ndarray, np.ndarray],
+) -> tuple[np.ndarray, np.ndarray] | None:
+    return relative_motion(*job)
 
 
 def _normalised(pixels: np.ndarray, K_inv: np.ndarray) -> np.ndarray:
@@ -108,12 +123,13 @@ def homography_fraction(x1: np.ndarray, x2: np.ndarray) -> float:
     return 0.0 if H is None else float(inliers.mean())
 
 
-def diagnose(tracks: list[np.ndarray], intrinsics: np.ndarray) -> str:
+def diagnose(tracks: list[np.ndarray], intrinsics: np.ndarray, workers: int | None = None) -> str:
     """The causes of weak self-calibration the tracks show, as one phrase.
 
     Args:
         tracks: per triplet, undistorted pixel tracks (3, n, 2).
         intrinsics: (fx, fy, cx, cy) of the estimate, pixels.
+        workers: threads over the view pairs (None: one per core).
 
     Returns:
         e.g. ``"rotation about one axis (planar motion; camera y, up to 12° between views)"``; ``"no
@@ -136,15 +152,12 @@ def diagnose(tracks: list[np.ndarray], intrinsics: np.ndarray) -> str:
             f"{np.percentile(displacements, 75):.1f} px between views: copies of one image?)"
         )
         return "; ".join(findings)
-    fractions, angles, vectors, forward = [], [], [], []
-    for x in tracks[:MAX_TRIPLETS]:
-        pixels = np.ascontiguousarray(x, dtype=np.float64)
-        normalised = _normalised(pixels, K_inv)
-        for view in (1, 2):
-            fractions.append(homography_fraction(pixels[0], pixels[view]))
-            motion = relative_motion(normalised[0], normalised[view])
-            if motion is None:
-                continue
+    jobs = [(np.ascontiguousarray(x[[0, view]]), K_inv) for x in examined for view in (1, 2)]
+    pairs = map_jobs(_pair_job, jobs, workers)
+    fractions = [fraction for fraction, _ in pairs]
+    angles, vectors, forward = [], [], []
+    for _, motion in pairs:
+        if motion is not None:
             R, t = motion
             rotation_vector = cv2.Rodrigues(R)[0].ravel()
             angle = np.linalg.norm(rotation_vector)
@@ -176,6 +189,18 @@ def diagnose(tracks: list[np.ndarray], intrinsics: np.ndarray) -> str:
                 "between views)"
             )
     return "; ".join(findings) if findings else "no degenerate motion found"
+
+
+def _pair_job(
+    job: tuple[np.ndarray, np.ndarray],
+) -> tuple[float, tuple[np.ndarray, np.ndarray] | None]:
+    """The homography fraction and the relative motion of a view pair (2, n, 2), pixels."""
+    pixels, K_inv = job
+    normalised = _normalised(pixels, K_inv)
+    return (
+        homography_fraction(pixels[0], pixels[1]),
+        relative_motion(normalised[0], normalised[1]),
+    )
 
 
 def _principal_axis(vectors: np.ndarray) -> np.ndarray:

@@ -58,7 +58,7 @@ def select_camera_triplets(
     sequence = options.sequence
     if sequence is None:
         sequence = is_sequence(graph, image_ids) and moves_forward(
-            data.keypoints, data.matches, data.prior
+            data.keypoints, data.matches, data.prior, workers=options.workers
         )
     if sequence:
         logger.info("camera %d: a sequence: triplets over wide gaps and turns", camera.camera_id)
