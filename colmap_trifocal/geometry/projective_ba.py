@@ -170,7 +170,8 @@ def refine_triplet(
         if not improved or relative_decrease < tolerance:
             break
     U, V, W, _, _, r = _linearise(x, P2, P3, points, scale)
-    S = U - _contract_points(W @ pseudo_inverse_3x3(V), W)
+    # pinv: a point seen along its own epipolar direction has a singular 3x3 block.
+    S = U - _contract_points(W @ np.linalg.pinv(V), W)
     n = len(points)
     dof = max(6 * n - (3 * n + 24 - GAUGE_DIMENSION), 1)
     sigma2 = cost / dof
@@ -205,19 +206,6 @@ def inverse_3x3(M: np.ndarray) -> np.ndarray:
     determinant = a * out[:, 0, 0] + b * out[:, 1, 0] + c * out[:, 2, 0]
     with np.errstate(divide="ignore", invalid="ignore"):
         return out / determinant[:, None, None]
-
-
-def pseudo_inverse_3x3(M: np.ndarray) -> np.ndarray:
-    """Pseudo-inverses of a stack of 3x3 matrices (n, 3, 3): :func:`inverse_3x3` where it
-    inverts the block (``M M⁻¹ = I`` to 1e-8), ``np.linalg.pinv`` for the others (a
-    point seen along its own epipolar direction has a singular block)."""
-    inverse = inverse_3x3(M)
-    with np.errstate(invalid="ignore", over="ignore"):
-        error = np.abs(M @ inverse - np.eye(3)).max(axis=(1, 2))
-    singular = ~(error < 1e-8)
-    if singular.any():
-        inverse[singular] = np.linalg.pinv(M[singular])
-    return inverse
 
 
 def gauge_free_inverse(S: np.ndarray, gauge_dimension: int = GAUGE_DIMENSION) -> np.ndarray:
