@@ -158,14 +158,13 @@ def estimate_distortion(
             screen reads only those; default all).
         workers: threads for the per-triplet work (None: one per core).
 
-    Returns None when the distortion is taken as stored, the solve's model is not
-    expressible in pycolmap (one principal-point coordinate held) or estimates
-    nothing, fewer than ``MIN_TRIPLETS`` triplets agree, or Ceres fails.
+    Returns None when the distortion is taken as stored, the solve estimates nothing,
+    fewer than ``MIN_TRIPLETS`` triplets agree, or Ceres fails.
     """
     camera_model = distortion_model(camera)
     if camera_model is None or not tensors:
         return None
-    setup = pycolmap_camera_setup(free_parameters)
+    setup = _lens_setup(free_parameters)
     if setup is None:
         return None
     _, refine_focal, refine_principal_point = setup
@@ -225,7 +224,10 @@ def estimate_distortion(
     points = sum(len(shared.triplets[p].point_ids) for p in agreeing)
     free = len(params) if refine_principal_point else len(params) - 2
     variance = with_distortion / max(6 * points - (3 * points + 11 * len(agreeing)) - free, 1)
-    params_std = _params_std(covariance, adjusted, variance, len(params))
+    refined = (list(adjusted.focal_length_idxs()) if refine_focal else []) + (
+        list(adjusted.principal_point_idxs()) if refine_principal_point else []
+    )
+    params_std = _params_std(covariance, adjusted, variance, sorted(refined + extra))
     fitted = CameraInfo(camera.camera_id, camera_model, *size, params)
     intrinsics_std = _intrinsics_std(fitted, params_std)
     distortion_std = params_std[extra]
@@ -243,6 +245,24 @@ def estimate_distortion(
         threshold=float(chi2.isf(significance, len(extra))),
         agreeing=len(agreeing),
     )
+
+
+def _lens_setup(free_parameters: FreeParameters) -> tuple[str, bool, bool] | None:
+    """(pinhole model, refine the focal length, refine the principal point) of the
+    adjustment, None where the solve estimates nothing.
+
+    pycolmap refines the principal point as one: where the solve held one coordinate
+    (the images did not determine it), both stay at the estimate, and the distortion
+    is estimated with the focal length alone (a lens whose unmodelled distortion left
+    cy undetermined is the case that needs it most).
+    """
+    if free_parameters.dimension == 0:
+        return None
+    setup = pycolmap_camera_setup(free_parameters)
+    if setup is not None:
+        return setup
+    model = "SIMPLE_PINHOLE" if free_parameters.focal == "tied" else "PINHOLE"
+    return model, free_parameters.focal != "held", False
 
 
 def _cost_without_distortion(
@@ -270,19 +290,24 @@ def _params_std(
     covariance: pycolmap.BACovariance | None,
     camera: pycolmap.Camera,
     variance: float,
-    count: int,
+    refined: list[int],
 ) -> np.ndarray:
     """Std of every camera parameter (COLMAP's order) from pycolmap's covariance of the
-    adjustment (unit weights) scaled by the residual variance; inf where unavailable."""
+    adjustment (unit weights) scaled by the residual variance: the ``refined``
+    parameters' (indices, ascending: pycolmap's block covers those), 0 for the held
+    ones; inf where unavailable."""
+    count = len(camera.params)
     if covariance is None:
         return np.full(count, np.inf)
     block = covariance.get_other_params_cov(camera.params)
     if block is None:
         return np.full(count, np.inf)
     block = np.asarray(block, dtype=float)
-    if block.shape != (count, count):
+    if block.shape != (len(refined), len(refined)):
         return np.full(count, np.inf)
-    return np.sqrt(np.clip(np.diag(block), 0.0, None) * variance)
+    std = np.zeros(count)
+    std[refined] = np.sqrt(np.clip(np.diag(block), 0.0, None) * variance)
+    return std
 
 
 def _intrinsics_std(camera: CameraInfo, params_std: np.ndarray) -> np.ndarray:
