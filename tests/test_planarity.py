@@ -19,7 +19,6 @@ from colmap_trifocal.geometry.tensor_estimation import (
 )
 from colmap_trifocal.geometry.tracks import (
     MatchGraph,
-    pair_planes,
     plane_parallax,
     select_triplets,
     triplet_points,
@@ -146,11 +145,9 @@ def test_selection_prefers_wide_facade_triplets() -> None:
     def spans(triplets: list) -> np.ndarray:
         return np.array([t.image_ids[2] - t.image_ids[0] for t in triplets])
 
-    assert spans(by_parallax).mean() >= spans(by_tracks).mean() + 1.0
+    assert np.median(spans(by_parallax)) >= np.median(spans(by_tracks)) + 2
     widest = max(by_parallax, key=lambda t: t.image_ids[2] - t.image_ids[0])
-    i, j, k = widest.image_ids
-    planes = pair_planes(graph, [(i, j), (i, k), (j, k)], contents.keypoints)
-    assert plane_parallax(triplet_points(widest, contents.keypoints), list(planes.values())) > 5.0
+    assert plane_parallax(triplet_points(widest, contents.keypoints)) > 5.0
 
 
 def test_facade_triplets_agree_and_the_estimate_is_accurate_by_default() -> None:

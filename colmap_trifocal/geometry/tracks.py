@@ -19,9 +19,7 @@ Selection, bounded for large databases (:func:`select_triplets`):
    of their bound, while fewer than that many reach ``min_tracks``;
 3. greedy spread over the view graph (:func:`spread_triplets`), weighing each
    candidate by its tracks times their parallax off the dominant plane of its
-   widest pair (:func:`parallax_score`), when the keypoints are given. The plane of
-   a pair is fitted once on the pair's matches (:func:`pair_planes`), whichever
-   candidates share the pair.
+   widest pair (:func:`parallax_score`), when the keypoints are given.
 
 Sequences (video, driving; :func:`is_sequence`): adjacent frames share most
 tracks but barely rotate, and a triplet of them says little about K. There the
@@ -68,7 +66,7 @@ SEQUENCE_CORRELATION = -0.4
 PLANE_THRESHOLD_PX = 3.0
 #: Percentile of the tracks' distances from that plane that :func:`plane_parallax` reports.
 PARALLAX_PERCENTILE = 75.0
-#: Matches (evenly spaced) and RANSAC iterations :func:`pair_planes` uses per pair.
+#: Tracks (evenly spaced) and RANSAC iterations :func:`plane_parallax` uses per pair.
 #: The ranking of candidate triplets follows the parallax closely, so fewer of
 #: either pick weaker triplets on narrow scenes (docs/accuracy.md).
 PARALLAX_MAX_TRACKS = 300
@@ -99,11 +97,6 @@ class MatchGraph:
         """Verified matches between images a and b (0 if none)."""
         m = self._matches.get((min(a, b), max(a, b)))
         return 0 if m is None else len(m)
-
-    def matches(self, a: int, b: int) -> np.ndarray:
-        """Keypoint indices (m, 2) of the verified matches of images a < b, (a, b) columns."""
-        m = self._matches.get((a, b))
-        return np.empty((0, 2), dtype=np.int64) if m is None else m
 
     def neighbours(self) -> dict[int, set[int]]:
         """Image id -> ids it has verified matches with."""
@@ -316,17 +309,13 @@ def select_triplets(
     if len(evaluated) <= max_triplets:
         return evaluated
     if keypoints is not None:
-        pairs = sorted({pair for t in evaluated for pair in _pairs(t.image_ids)})
-        planes = pair_planes(graph, pairs, keypoints, workers)
+        parallax = map_jobs(
+            plane_parallax, [triplet_points(t, keypoints) for t in evaluated], workers
+        )
         weights = np.array(
             [
-                parallax_score(
-                    len(t.keypoint_indices),
-                    plane_parallax(
-                        triplet_points(t, keypoints), [planes[p] for p in _pairs(t.image_ids)]
-                    ),
-                )
-                for t in evaluated
+                parallax_score(len(t.keypoint_indices), p)
+                for t, p in zip(evaluated, parallax, strict=True)
             ]
         )
         ranked = np.argsort(-weights, kind="stable")
@@ -344,59 +333,26 @@ def triplet_points(triplet: Triplet, keypoints: dict[int, np.ndarray]) -> np.nda
     ).astype(np.float64)
 
 
-def _pairs(triple: tuple[int, int, int]) -> list[Pair]:
-    """The view pairs (1, 2), (1, 3), (2, 3) of a triplet's images (ascending ids)."""
-    i, j, k = triple
-    return [(i, j), (i, k), (j, k)]
-
-
-def pair_planes(
-    graph: MatchGraph,
-    pairs: list[Pair],
-    keypoints: dict[int, np.ndarray],
-    workers: int | None = None,
-) -> dict[Pair, np.ndarray | None]:
-    """Homography (3, 3), pixels of a -> pixels of b, of the dominant plane of each pair
-    (a, b), a < b: OpenCV RANSAC (threshold :data:`PLANE_THRESHOLD_PX`) on at most
-    :data:`PARALLAX_MAX_TRACKS` of its verified matches, evenly spaced (deterministic,
-    and the RANSAC's cost bounded); None where OpenCV finds none. Over ``workers``
-    threads (None: one per core)."""
-    jobs = []
-    for a, b in pairs:
-        m = graph.matches(a, b)
-        if len(m) > PARALLAX_MAX_TRACKS:
-            m = m[np.linspace(0, len(m) - 1, PARALLAX_MAX_TRACKS).round().astype(int)]
-        jobs.append(
-            (
-                keypoints[a][m[:, 0], :2].astype(np.float64),
-                keypoints[b][m[:, 1], :2].astype(np.float64),
-            )
-        )
-    planes = map_jobs(_plane_job, jobs, workers)
-    return dict(zip(pairs, planes, strict=True))
-
-
-def _plane_job(job: tuple[np.ndarray, np.ndarray]) -> np.ndarray | None:
-    x1, x2 = job
-    if len(x1) < 4:
-        return None
-    H, _ = plane_homography(x1, x2, PLANE_THRESHOLD_PX, PARALLAX_RANSAC_ITERATIONS, 0.999)
-    return H
-
-
-def plane_parallax(points: np.ndarray, planes: list[np.ndarray | None]) -> float:
+def plane_parallax(points: np.ndarray) -> float:
     """Parallax (pixels) of a triplet's tracks off the dominant plane of its widest pair.
 
-    ``points``: (3, n, 2) pixels; ``planes``: the homographies of the view pairs
-    (1, 2), (1, 3), (2, 3) (:func:`pair_planes`; None: no plane). For each pair, the
-    :data:`PARALLAX_PERCENTILE` percentile of the tracks' distances from its plane in
-    the pair's second view; the largest of the three (the widest pair: relief
-    parallax grows with the baseline). In a scene spread through depth there is no
-    dominant plane and the value is large for every triplet with a baseline.
+    For each of the three view pairs: a RANSAC homography (OpenCV, threshold
+    :data:`PLANE_THRESHOLD_PX`) and the :data:`PARALLAX_PERCENTILE` percentile of the
+    tracks' distances from it in the pair's second view; the largest of the three
+    (the widest pair: relief parallax grows with the baseline). In a scene spread
+    through depth there is no dominant plane and the value is large for every
+    triplet with a baseline. ``points``: (3, n, 2) pixels; at most
+    :data:`PARALLAX_MAX_TRACKS` of them are used.
     """
+    n = points.shape[1]
+    if n > PARALLAX_MAX_TRACKS:  # evenly spaced: deterministic, and RANSAC cost bounded
+        points = points[:, np.linspace(0, n - 1, PARALLAX_MAX_TRACKS).round().astype(int)]
     parallax = 0.0
-    for (a, b), H in zip(((0, 1), (0, 2), (1, 2)), planes, strict=True):
-        if H is None or points.shape[1] == 0:
+    for a, b in ((0, 1), (0, 2), (1, 2)):
+        H, _ = plane_homography(
+            points[a], points[b], PLANE_THRESHOLD_PX, PARALLAX_RANSAC_ITERATIONS, 0.999
+        )
+        if H is None:
             continue
         distance = transfer_distances(H, points[a], points[b])
         parallax = max(parallax, float(np.percentile(distance, PARALLAX_PERCENTILE)))
