@@ -201,7 +201,7 @@ def estimate_distortion(
     with keep_colmap_quiet():
         for _ in range(ROUNDS):
             stale = [p for p in everything if p not in agreeing]
-            if stale and not shared.adjust(stale, False, False):
+            if stale and not shared.adjust_each(stale):
                 return None
             chosen = [p for p, ratio in enumerate(shared.ratios()) if ratio < tau**2]
             if len(chosen) < MIN_TRIPLETS:

@@ -358,6 +358,14 @@ class _SharedCamera:
             adjuster = self.adjuster(which, refine_focal, refine_principal_point, refine_distortion)
             return bool(adjuster.solve().is_solution_usable())
 
+    def adjust_each(self, which: list[int]) -> bool:
+        """Adjust the poses and points of each triplet of ``which`` at the camera as it
+        is, one problem per triplet (they share nothing while the camera is held, and
+        one triplet far from the camera would keep a joint problem iterating for all);
+        False when Ceres finds no usable solution for any of them."""
+        usable = [self.adjust([position], False, False) for position in which]
+        return any(usable)
+
     def poses_and_points(self, triplet: _Triplet) -> tuple[np.ndarray, np.ndarray]:
         """A triplet's cameras (3, 3, 4) ``[R | t]`` and points (n, 3), as adjusted."""
         poses = np.stack(
@@ -455,7 +463,7 @@ def polish_intrinsics(
     agreeing: list[int] = []
     for _ in range(ROUNDS):
         stale = [p for p in everything if p not in agreeing]
-        if stale and not shared.adjust(stale, False, False):
+        if stale and not shared.adjust_each(stale):
             return None
         before = shared.ratios()
         chosen = [p for p, ratio in enumerate(before) if ratio < limit]
