@@ -75,13 +75,17 @@ def plane_homography(
     threshold: float,
     iterations: int = 2000,
     confidence: float = 0.995,
+    method: int = cv2.RANSAC,
 ) -> tuple[np.ndarray | None, np.ndarray]:
     """The homography (3, 3) most of the points x1 -> x2 (n, 2) fit, and which fit it
     (n,) bool; (None, all False) when OpenCV finds none.
 
-    OpenCV's USAC (``USAC_DEFAULT``: SPRT verification, local optimisation): on 300
-    tracks and 500 iterations a sixth of the cost of its plain RANSAC, with more
-    inliers.
+    ``method``: OpenCV's robust estimator, plain RANSAC by default; ``cv2.USAC_DEFAULT``
+    (SPRT verification, local optimisation) costs a sixth on 300 tracks and 500
+    iterations and finds more inliers, for questions that only need the share of
+    tracks on a plane (the diagnosis). The triplet ranking's parallax keeps plain
+    RANSAC: ranked by USAC's planes, the selected triplets gave less accurate
+    estimates on the Strecha scenes and the 10° ring (docs/accuracy.md).
 
     ``threshold`` is the inlier distance in the points' units; every caller passes the
     one its question needs (pixels for the tracks' parallax and the diagnosis, normalised
@@ -90,7 +94,7 @@ def plane_homography(
     H, mask = cv2.findHomography(
         np.ascontiguousarray(x1, dtype=np.float64),
         np.ascontiguousarray(x2, dtype=np.float64),
-        cv2.USAC_DEFAULT,
+        method,
         threshold,
         maxIters=iterations,
         confidence=confidence,

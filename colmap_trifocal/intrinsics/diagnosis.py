@@ -119,7 +119,7 @@ def homography_fraction(x1: np.ndarray, x2: np.ndarray) -> float:
     """Fraction of the tracks (pixels, (n, 2)) one homography explains within HOMOGRAPHY_PX."""
     if len(x1) < 8:
         return 0.0
-    H, inliers = plane_homography(x1, x2, HOMOGRAPHY_PX)
+    H, inliers = plane_homography(x1, x2, HOMOGRAPHY_PX, method=cv2.USAC_DEFAULT)
     return 0.0 if H is None else float(inliers.mean())
 
 

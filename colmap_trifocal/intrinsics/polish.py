@@ -18,10 +18,12 @@ The bundle adjustment replaces the constraint estimate when
 
 Before any adjustment: where every tensor already agrees with the constraint
 estimate (the polish cannot add triplets, and starts at its optimum's first-order
-neighbourhood), its jackknife is predicted from its first Gauss–Newton step
-(:func:`.triplet_bundle.predicted_jackknife_std`, milliseconds); where the
-prediction exceeds ``SKIP_RATIO`` times the constraints' variance the polish could
-not be kept, and is not run. Where tensors disagree (a near-planar scene) the
+neighbourhood), its move and its jackknife are predicted from its first Gauss–Newton
+step (:func:`.triplet_bundle.predict_polish`, milliseconds). It is not run where it
+could not be kept (the predicted jackknife variance exceeds ``SKIP_RATIO`` times the
+constraints'), nor where it could not change the answer: every estimated parameter
+would move by at most ``MOVE_FRACTION`` of its std, and the std it would report is
+never below the constraints'. Where tensors disagree (a near-planar scene) the
 polish can change which triplets count, and always runs.
 
 Its std is then the largest of the constraint solve's (which counts held and tied
@@ -43,7 +45,7 @@ from .selfcalibration import FallbackSolution
 from .triplet_bundle import (
     TripletBundleResult,
     polish_intrinsics,
-    predicted_jackknife_std,
+    predict_polish,
     pycolmap_camera_setup,
 )
 from .uncertainty import jackknife_covariance
@@ -57,6 +59,10 @@ VARIANCE_RATIO = 0.5
 #: (where every tensor agrees the polish starts next to its optimum, and the first
 #: step's prediction is within a few percent of the final ratio).
 SKIP_RATIO = 1.1 * VARIANCE_RATIO
+#: A polish predicted to move every estimated parameter by at most this fraction of
+#: its std is not run: the estimate would stay well inside its uncertainty, and the
+#: reported std would not narrow.
+MOVE_FRACTION = 0.5
 
 
 @dataclass
@@ -148,17 +154,23 @@ def not_worth_it(
     """Why the polish cannot be kept, judged before it runs (see the module), or None."""
     if fallback.solution.jackknife is None or not np.all(fallback.solution.inlier_tensors):
         return None
-    predicted = predicted_jackknife_std(
-        tensors, tracks, start, estimate, fallback.free_parameters, workers
-    )
+    predicted = predict_polish(tensors, tracks, start, estimate, fallback.free_parameters, workers)
     if predicted is None:
         return None
-    polish_variance, constraint_variance = _variances(predicted, focal_scale, fallback)
-    if polish_variance > SKIP_RATIO * constraint_variance:
-        return (
-            f"its predicted jackknife spread ({np.sqrt(polish_variance):.2%}) exceeds the "
-            f"constraints' ({np.sqrt(constraint_variance):.2%})"
+    if predicted.jackknife_std is not None:
+        polish_variance, constraint_variance = _variances(
+            predicted.jackknife_std, focal_scale, fallback
         )
+        if polish_variance > SKIP_RATIO * constraint_variance:
+            return (
+                f"its predicted jackknife spread ({np.sqrt(polish_variance):.2%}) exceeds "
+                f"the constraints' ({np.sqrt(constraint_variance):.2%})"
+            )
+    estimated = fallback.free_parameters.parametrization(np.ones(4), np.ones(4)).matrix.any(axis=1)
+    std = fallback.relative_std * focal_scale
+    moves = np.abs(predicted.step[estimated]) / std[estimated]
+    if moves.size and np.all(np.isfinite(moves)) and moves.max() <= MOVE_FRACTION:
+        return f"its predicted move ({moves.max():.2f} std at most) cannot change the estimate"
     return None
 
 

@@ -504,21 +504,36 @@ def polish_intrinsics(
     )
 
 
-def predicted_jackknife_std(
+@dataclass
+class PredictedPolish:
+    """Where the polish would take the estimate, predicted by its first Gauss–Newton step.
+
+    Attributes:
+        step: (4,) move of (fx, fy, cx, cy) from the constraint estimate, pixels.
+        jackknife_std: (4,) its delete-a-group jackknife std, pixels (None: too few
+            image groups).
+    """
+
+    step: np.ndarray
+    jackknife_std: np.ndarray | None
+
+
+def predict_polish(
     tensors: list[TripletTensor],
     tracks: dict[tuple[int, int, int], np.ndarray],
     start: np.ndarray,
     estimate: np.ndarray,
     free_parameters: FreeParameters,
     workers: int | None = None,
-) -> np.ndarray | None:
-    """(4,) jackknife std of the polish (pixels) predicted from its first Gauss–Newton step.
+) -> PredictedPolish | None:
+    """The polish's move and jackknife std predicted from its first Gauss–Newton step.
 
     No adjustment is run: each tensor's calibrated cameras at the constraint estimate,
     its tracks (at most ``MAX_TRACKS``) triangulated, their Schur complements on the
-    camera (:func:`.bundle_information.reduced_information`), and one Gauss–Newton
-    step per image group left out. Milliseconds per tensor; what the polish would
-    reach differs by its further iterations. None where it cannot be formed.
+    camera (:func:`.bundle_information.reduced_information`), one Gauss–Newton step
+    with every triplet and one per image group left out. Milliseconds per tensor; what
+    the polish would reach differs by its further iterations. None where it cannot be
+    formed.
     """
     start_values = _camera_start(free_parameters, estimate)
     if start_values is None or not tensors:
@@ -530,13 +545,16 @@ def predicted_jackknife_std(
     free = _refined_directions(
         camera_model == "SIMPLE_PINHOLE", refine_focal, refine_principal_point
     )
-    return _one_step_jackknife_std(
-        intrinsics,
-        np.stack([part.information for part in parts]),
-        np.stack([part.gradient for part in parts]),
-        free,
-        [part.tensor.image_ids for part in parts],
+    information = np.stack([part.information for part in parts])
+    gradients = np.stack([part.gradient for part in parts])
+    reduced = free.T @ information.sum(axis=0) @ free
+    if not np.all(np.isfinite(reduced)) or np.linalg.matrix_rank(reduced) < free.shape[1]:
+        return None
+    step = -free @ np.linalg.solve(reduced, free.T @ gradients.sum(axis=0))
+    jackknife_std = _one_step_jackknife_std(
+        intrinsics, information, gradients, free, [part.tensor.image_ids for part in parts]
     )
+    return PredictedPolish(intrinsics + step - np.asarray(estimate, float), jackknife_std)
 
 
 @dataclass
