@@ -252,9 +252,9 @@ def _lens_setup(free_parameters: FreeParameters) -> tuple[str, bool, bool] | Non
     adjustment, None where the solve estimates nothing.
 
     pycolmap refines the principal point as one: where the solve held one coordinate
-    (the images did not determine it), both stay at the estimate, and the distortion
-    is estimated with the focal length alone (a lens whose unmodelled distortion left
-    cy undetermined is the case that needs it most).
+    (a lens whose unmodelled distortion left it undetermined is the case that needs
+    the distortion most), both are refined from the estimate; the held coordinate
+    keeps its start's std, which the adjustment's cannot undercut.
     """
     if free_parameters.dimension == 0:
         return None
@@ -262,7 +262,7 @@ def _lens_setup(free_parameters: FreeParameters) -> tuple[str, bool, bool] | Non
     if setup is not None:
         return setup
     model = "SIMPLE_PINHOLE" if free_parameters.focal == "tied" else "PINHOLE"
-    return model, free_parameters.focal != "held", False
+    return model, free_parameters.focal != "held", True
 
 
 def _cost_without_distortion(
