@@ -296,7 +296,10 @@ def test_lock_file_is_removed_and_not_content(
 @pytest.mark.slow  # two whole runs
 def test_two_runs_on_one_workspace(tmp_path: Path) -> None:
     """Two ``run IMAGES WS --overwrite`` started together: one completes (exit 0, a full
-    database and model), the other says the workspace is in use (exit 2, one line)."""
+    database and model); the other says the workspace is in use (exit 2, one line) or,
+    where the first ended before it took the lock (a run of three images takes about a
+    second), runs after it. Either way the workspace ends whole. The refusal itself is
+    checked deterministically by ``test_workspace_in_use_is_left_alone``."""
     images = _image_folder(tmp_path / "images")
     workspace = tmp_path / "ws"
     command = [sys.executable, "-m", "colmap_trifocal.cli", "run", str(images), str(workspace)]
@@ -311,7 +314,8 @@ def test_two_runs_on_one_workspace(tmp_path: Path) -> None:
     out, err = first.communicate(timeout=300)
     outcomes = sorted([(first.returncode, err), (second.returncode, second.stderr)])
     assert outcomes[0][0] == 0, outcomes
-    assert_one_error_line(CliResult(outcomes[1][0], "", outcomes[1][1]), "is in use")
+    if outcomes[1][0] != 0:
+        assert_one_error_line(CliResult(outcomes[1][0], "", outcomes[1][1]), "is in use")
     assert sorted(os.listdir(workspace)) == ["database.db", "report.json", "sparse"]
     with pycolmap.Database.open(str(workspace / "database.db")) as db:
         assert db.num_images() == 3 and db.num_keypoints() > 0
