@@ -74,8 +74,11 @@ def assess(
     held_focal = np.array([candidate.held[0], candidate.held[1]] * 2)
     for index, name in enumerate(PARAMETER_NAMES):
         if source[name] in ("focal-search", "prior"):
-            # A held value is known as well as its evidence: the start's std.
+            # A held value is known as well as its evidence: the start's std. It stays
+            # held where the lens adjustment refined it with the rest of the principal
+            # point (pycolmap refines both coordinates or neither).
             reported_std[name] = float(candidate.held_std[index] * held_focal[index])
+            estimate[index] = polished.intrinsics[index]
     return CameraCalibration(
         camera_id=camera.camera_id,
         model=camera.model,
