@@ -42,6 +42,7 @@ import numpy as np
 from scipy.stats import spearmanr
 
 from ..common.parallel import map_jobs
+from ..common.sampling import evenly_spaced
 from .planarity import plane_homography, transfer_distances
 
 Pair = tuple[int, int]
@@ -344,9 +345,7 @@ def plane_parallax(points: np.ndarray) -> float:
     triplet with a baseline. ``points``: (3, n, 2) pixels; at most
     :data:`PARALLAX_MAX_TRACKS` of them are used.
     """
-    n = points.shape[1]
-    if n > PARALLAX_MAX_TRACKS:  # evenly spaced: deterministic, and RANSAC cost bounded
-        points = points[:, np.linspace(0, n - 1, PARALLAX_MAX_TRACKS).round().astype(int)]
+    points = points[:, evenly_spaced(points.shape[1], PARALLAX_MAX_TRACKS)]
     parallax = 0.0
     for a, b in ((0, 1), (0, 2), (1, 2)):
         H, _ = plane_homography(

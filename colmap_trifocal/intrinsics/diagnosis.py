@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from ..common.parallel import map_jobs
+from ..common.sampling import evenly_spaced
 from ..geometry.planarity import plane_homography
 from ..geometry.trifocal import intrinsics_matrix
 
@@ -94,8 +95,7 @@ def moves_forward(
     jobs = []
     for a, b in (consecutive[i] for i in chosen):
         m = matches[(a, b)]
-        if len(m) > FORWARD_MAX_MATCHES:
-            m = m[np.linspace(0, len(m) - 1, FORWARD_MAX_MATCHES).round().astype(int)]
+        m = m[evenly_spaced(len(m), FORWARD_MAX_MATCHES)]
         x1 = _normalised(keypoints[a][m[:, 0], :2], K_inv)
         x2 = _normalised(keypoints[b][m[:, 1], :2], K_inv)
         jobs.append((x1, x2))

@@ -166,7 +166,7 @@ def not_worth_it(
                 f"its predicted jackknife spread ({np.sqrt(polish_variance):.2%}) exceeds "
                 f"the constraints' ({np.sqrt(constraint_variance):.2%})"
             )
-    estimated = fallback.free_parameters.parametrization(np.ones(4), np.ones(4)).matrix.any(axis=1)
+    estimated = _estimated(fallback)
     std = fallback.relative_std * focal_scale
     moves = np.abs(predicted.step[estimated]) / std[estimated]
     if moves.size and np.all(np.isfinite(moves)) and moves.max() <= MOVE_FRACTION:
@@ -174,12 +174,19 @@ def not_worth_it(
     return None
 
 
+def _estimated(fallback: FallbackSolution) -> np.ndarray:
+    """(4,) bool: which of (fx, fy, cx, cy) the constraint solve estimated."""
+    return np.asarray(
+        fallback.free_parameters.parametrization(np.ones(4), np.ones(4)).matrix.any(axis=1)
+    )
+
+
 def _variances(
     polish_std: np.ndarray, focal_scale: np.ndarray, fallback: FallbackSolution
 ) -> tuple[float, float]:
     """Summed variances of the estimated parameters, relative to the focal length: the
     polish's (from its std in pixels) and the constraint solve's jackknife."""
-    estimated = fallback.free_parameters.parametrization(np.ones(4), np.ones(4)).matrix.any(axis=1)
+    estimated = _estimated(fallback)
     assert fallback.solution.jackknife is not None
     constraint = np.diag(jackknife_covariance(fallback.solution.jackknife))
     return (

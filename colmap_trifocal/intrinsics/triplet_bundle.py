@@ -56,6 +56,7 @@ import pycolmap
 from ..common.bundle_adjustment import bundle_adjustment_options
 from ..common.log import keep_colmap_quiet
 from ..common.parallel import map_jobs
+from ..common.sampling import evenly_spaced
 from ..database.cameras import CameraInfo
 from ..geometry.projective_ba import refine_triplet
 from ..geometry.tensor_estimation import TripletTensor
@@ -482,8 +483,8 @@ def polish_intrinsics(
     observations = sum(6 * len(shared.triplets[p].point_ids) for p in agreeing)
     unknowns = sum(3 * len(shared.triplets[p].point_ids) + 11 for p in agreeing)
     variance = float(costs.sum()) / max(observations - unknowns - free.shape[1], 1)
-    reduced = free.T @ information.sum(axis=0) @ free
-    if not np.all(np.isfinite(reduced)) or np.linalg.matrix_rank(reduced) < free.shape[1]:
+    reduced = _reduced(information.sum(axis=0), free)
+    if reduced is None:
         return None
     covariance_std = np.sqrt(np.diag(variance * free @ np.linalg.inv(reduced) @ free.T))
     groups = [tensors[shared.triplets[p].index].image_ids for p in agreeing]
@@ -547,14 +548,13 @@ def predict_polish(
     )
     information = np.stack([part.information for part in parts])
     gradients = np.stack([part.gradient for part in parts])
-    reduced = free.T @ information.sum(axis=0) @ free
-    if not np.all(np.isfinite(reduced)) or np.linalg.matrix_rank(reduced) < free.shape[1]:
+    moved = _gauss_newton(intrinsics, information.sum(axis=0), gradients.sum(axis=0), free)
+    if moved is None:
         return None
-    step = -free @ np.linalg.solve(reduced, free.T @ gradients.sum(axis=0))
     jackknife_std = _one_step_jackknife_std(
         intrinsics, information, gradients, free, [part.tensor.image_ids for part in parts]
     )
-    return PredictedPolish(intrinsics + step - np.asarray(estimate, float), jackknife_std)
+    return PredictedPolish(moved - np.asarray(estimate, float), jackknife_std)
 
 
 @dataclass
@@ -616,13 +616,33 @@ def _one_step_jackknife_std(
     """
 
     def replicate(keep: np.ndarray) -> np.ndarray | None:
-        kept = free.T @ information[keep].sum(axis=0) @ free
-        if not np.all(np.isfinite(kept)) or np.linalg.matrix_rank(kept) < free.shape[1]:
-            return None
-        return intrinsics - free @ np.linalg.solve(kept, free.T @ gradients[keep].sum(axis=0))
+        return _gauss_newton(
+            intrinsics, information[keep].sum(axis=0), gradients[keep].sum(axis=0), free
+        )
 
     replicates = jackknife_replicates(groups, replicate)
     return None if replicates is None else np.sqrt(np.diag(jackknife_covariance(replicates)))
+
+
+def _reduced(information: np.ndarray, free: np.ndarray) -> np.ndarray | None:
+    """``Aᵀ H A`` (k, k): a summed information H (q, q) on the k refined directions A
+    (``free``, q × k); None where it is not finite or singular."""
+    reduced = free.T @ information @ free
+    if not np.all(np.isfinite(reduced)) or np.linalg.matrix_rank(reduced) < free.shape[1]:
+        return None
+    return reduced
+
+
+def _gauss_newton(
+    intrinsics: np.ndarray, information: np.ndarray, gradient: np.ndarray, free: np.ndarray
+) -> np.ndarray | None:
+    """The parameters after one Gauss–Newton step ``−A (AᵀHA)⁻¹ Aᵀg`` from ``intrinsics``
+    on a summed information H (q, q) and gradient g (q,), along the refined directions
+    A (``free``); None where :func:`_reduced` is."""
+    reduced = _reduced(information, free)
+    if reduced is None:
+        return None
+    return intrinsics - free @ np.linalg.solve(reduced, free.T @ gradient)
 
 
 def _inlier_pixels(
@@ -632,10 +652,7 @@ def _inlier_pixels(
 ) -> np.ndarray:
     """A tensor's inlier tracks (3, n, 2) in pixels, at most ``max_tracks`` evenly spaced."""
     pixels = tracks[tensor.image_ids][:, tensor.inliers]
-    n = pixels.shape[1]
-    if n > max_tracks:
-        pixels = pixels[:, np.linspace(0, n - 1, max_tracks).round().astype(int)]
-    return pixels
+    return pixels[:, evenly_spaced(pixels.shape[1], max_tracks)]
 
 
 def _camera_start(
