@@ -76,27 +76,39 @@ def test_camera_setup_follows_the_free_parameters(free_parameters, expected):
     assert pycolmap_camera_setup(free_parameters) == expected
 
 
-def _facade_run(triplet_bundle: bool):
-    scene = facade_scene(relief=0.01, seed=3, noise_px=1.0, num_points=1000)
+def _facade_run(triplet_bundle: bool, seed: int = 3):
+    scene = facade_scene(relief=0.01, seed=seed, noise_px=1.0, num_points=1000)
     truth = scene.intrinsics
-    signs = np.random.default_rng(3 + 99).choice([-1.0, 1.0], 4)
-    options = CalibrationOptions(prior=tuple(truth * (1.0 + 0.05 * signs)), seed=3)
+    signs = np.random.default_rng(seed + 99).choice([-1.0, 1.0], 4)
+    options = CalibrationOptions(prior=tuple(truth * (1.0 + 0.05 * signs)), seed=seed)
     options.triplet_bundle = triplet_bundle
     (result,) = calibrate_contents(scene_contents(scene), options)
     return float(np.abs(result.intrinsics / truth - 1.0).mean() * 100.0), result
 
 
 def test_planar_facade_polished_to_the_general_scene_accuracy():
-    """Seed 3 at 1 % relief: 14 of 20 tensors agreed and 0.11 % without the polish."""
-    polished, result = _facade_run(True)
-    constraints_only, before = _facade_run(False)
-    assert result.triplet_bundle["used"] and before.triplet_bundle is None
-    assert result.num_inlier_triplets >= 18 > before.num_inlier_triplets
-    assert polished < 0.06  # the general scene (30 % relief) is at 0.02-0.04 %
-    assert polished < constraints_only
-    # The constraint estimate it started from is reported, and the std covers.
+    """1 % relief, seeds 2–4: 13–19 of 20 tensors agree on the constraints alone
+    (0.15–0.21 %); the polish brings every one to 0.05–0.10 % (mean 0.070 %; over
+    seeds 0–5 0.061 % against 0.126 %). Seed 3 in detail: the constraint estimate the
+    polish started from is reported, and the std covers."""
+    polished, constraints_only, runs = [], [], {}
+    for seed in (2, 3, 4):
+        after, result = _facade_run(True, seed)
+        before_error, before = _facade_run(False, seed)
+        assert result.triplet_bundle["used"] and before.triplet_bundle is None
+        assert result.num_inlier_triplets >= 18 and after < before_error, seed
+        polished.append(after)
+        constraints_only.append(before_error)
+        runs[seed] = (result, before)
+    assert np.mean(polished) < 0.08  # the general scene (30 % relief) is at 0.02-0.04 %
+    assert np.mean(polished) < 0.6 * np.mean(constraints_only)
+    result, before = runs[3]
     started = np.array(list(result.triplet_bundle["constraints"].values()))
     np.testing.assert_allclose(started, before.intrinsics, rtol=1e-9)
     truth = facade_scene(relief=0.01, seed=3, noise_px=1.0, num_points=1000).intrinsics
-    std = np.array([result.std[name] for name in ("fx", "fy", "cx", "cy")])
-    assert np.all(np.abs(result.intrinsics - truth) < 2 * std)
+    for index, name in enumerate(("fx", "fy", "cx", "cy")):
+        std = result.std[name]
+        if std is None:  # fy tied to fx where the triplets cannot tell them apart
+            assert result.source[name] == "tied" and result.fy == result.fx
+        else:
+            assert abs(result.intrinsics[index] - truth[index]) < 2 * std, name

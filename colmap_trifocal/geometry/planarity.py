@@ -83,9 +83,7 @@ def plane_homography(
     ``method``: OpenCV's robust estimator, plain RANSAC by default; ``cv2.USAC_DEFAULT``
     (SPRT verification, local optimisation) costs a sixth on 300 tracks and 500
     iterations and finds more inliers, for questions that only need the share of
-    tracks on a plane (the diagnosis). The triplet ranking's parallax keeps plain
-    RANSAC: ranked by USAC's planes, the selected triplets gave less accurate
-    estimates on the Strecha scenes and the 10° ring (docs/accuracy.md).
+    tracks on a plane (the diagnosis).
 
     ``threshold`` is the inlier distance in the points' units; every caller passes the
     one its question needs (pixels for the tracks' parallax and the diagnosis, normalised
@@ -102,6 +100,57 @@ def plane_homography(
     if H is None or mask is None:
         return None, np.zeros(len(x1), dtype=bool)
     return H, mask.ravel() > 0
+
+
+def uniform_ransac_homography(
+    x1: np.ndarray,
+    x2: np.ndarray,
+    threshold: float,
+    iterations: int,
+    confidence: float,
+    seed: int = 0,
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """Plain RANSAC's homography of x1 -> x2 (n, 2) and its inliers (n,) bool, run by
+    OpenCV's USAC framework: uniform 4-point samples, the inlier count as score, no
+    local optimisation; then, as ``cv2.findHomography`` does after ``cv2.RANSAC``, a
+    least-squares fit with Levenberg–Marquardt refinement on the inliers. ``seed``
+    draws the samples. None (and no inliers) where OpenCV finds none.
+
+    The estimator is :func:`plane_homography`'s with ``cv2.RANSAC`` with other random
+    samples; USAC's minimal solver and its early exit from counting a sample that
+    cannot beat the best make it 1/25 of the cost where the plane holds few of the
+    points (the parallax ranking of :mod:`.tracks`, docs/accuracy.md).
+    """
+    params = cv2.UsacParams()
+    params.threshold = threshold
+    params.confidence = confidence
+    params.maxIterations = iterations
+    params.sampler = cv2.SAMPLING_UNIFORM
+    params.score = cv2.SCORE_METHOD_RANSAC
+    params.loMethod = cv2.LOCAL_OPTIM_NULL
+    params.final_polisher = cv2.LSQ_POLISHER
+    params.isParallel = False
+    params.randomGeneratorState = int(seed) % (2**31)
+    try:
+        H, mask = cv2.findHomography(
+            np.ascontiguousarray(x1, dtype=np.float64),
+            np.ascontiguousarray(x2, dtype=np.float64),
+            params,
+        )
+    except cv2.error:
+        return None, np.zeros(len(x1), dtype=bool)
+    if H is None or mask is None:
+        return None, np.zeros(len(x1), dtype=bool)
+    inliers = mask.ravel() > 0
+    if inliers.sum() > 4:
+        refit = cv2.findHomography(
+            np.ascontiguousarray(x1[inliers], dtype=np.float64),
+            np.ascontiguousarray(x2[inliers], dtype=np.float64),
+            0,
+        )[0]
+        if refit is not None:
+            H = refit
+    return H, inliers
 
 
 def transfer_distances(H: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:

@@ -43,7 +43,7 @@ from scipy.stats import spearmanr
 
 from ..common.parallel import map_jobs
 from ..common.sampling import evenly_spaced
-from .planarity import plane_homography, transfer_distances
+from .planarity import transfer_distances, uniform_ransac_homography
 
 Pair = tuple[int, int]
 
@@ -273,6 +273,7 @@ def select_triplets(
     neighbours_per_image: int | None = NEIGHBOURS_PER_IMAGE,
     keypoints: dict[int, np.ndarray] | None = None,
     workers: int | None = None,
+    seed: int = 0,
 ) -> list[Triplet]:
     """Up to ``max_triplets`` triplets with at least ``min_tracks`` tracks, spread over the images.
 
@@ -280,7 +281,7 @@ def select_triplets(
     triangle of the view graph and returns all that qualify, most tracks first.
     With ``keypoints`` (image id -> (m, ≥2) pixels) the spread weighs candidates by
     :func:`parallax_score` instead of their track count (computed over ``workers``
-    threads; None: one per core).
+    threads, None: one per core; ``seed`` draws the RANSAC samples of the parallax).
     """
     if max_triplets is None:
         ids, _ = candidate_triplets(graph, image_ids, None)
@@ -311,7 +312,7 @@ def select_triplets(
         return evaluated
     if keypoints is not None:
         parallax = map_jobs(
-            plane_parallax, [triplet_points(t, keypoints) for t in evaluated], workers
+            _parallax_job, [(triplet_points(t, keypoints), seed) for t in evaluated], workers
         )
         weights = np.array(
             [
@@ -334,22 +335,28 @@ def triplet_points(triplet: Triplet, keypoints: dict[int, np.ndarray]) -> np.nda
     ).astype(np.float64)
 
 
-def plane_parallax(points: np.ndarray) -> float:
+def _parallax_job(job: tuple[np.ndarray, int]) -> float:
+    return plane_parallax(*job)
+
+
+def plane_parallax(points: np.ndarray, seed: int = 0) -> float:
     """Parallax (pixels) of a triplet's tracks off the dominant plane of its widest pair.
 
-    For each of the three view pairs: a RANSAC homography (OpenCV, threshold
-    :data:`PLANE_THRESHOLD_PX`) and the :data:`PARALLAX_PERCENTILE` percentile of the
+    For each of the three view pairs: a plain RANSAC homography
+    (:func:`.planarity.uniform_ransac_homography`, threshold :data:`PLANE_THRESHOLD_PX`,
+    samples drawn from ``seed``) and the :data:`PARALLAX_PERCENTILE` percentile of the
     tracks' distances from it in the pair's second view; the largest of the three
     (the widest pair: relief parallax grows with the baseline). In a scene spread
-    through depth there is no dominant plane and the value is large for every
-    triplet with a baseline. ``points``: (3, n, 2) pixels; at most
-    :data:`PARALLAX_MAX_TRACKS` of them are used.
+    through depth there is no dominant plane, RANSAC's plane holds a few tracks and
+    differs from draw to draw, and the value is large for every triplet with a
+    baseline. ``points``: (3, n, 2) pixels; at most :data:`PARALLAX_MAX_TRACKS` of
+    them are used.
     """
     points = points[:, evenly_spaced(points.shape[1], PARALLAX_MAX_TRACKS)]
     parallax = 0.0
     for a, b in ((0, 1), (0, 2), (1, 2)):
-        H, _ = plane_homography(
-            points[a], points[b], PLANE_THRESHOLD_PX, PARALLAX_RANSAC_ITERATIONS, 0.999
+        H, _ = uniform_ransac_homography(
+            points[a], points[b], PLANE_THRESHOLD_PX, PARALLAX_RANSAC_ITERATIONS, 0.999, seed
         )
         if H is None:
             continue

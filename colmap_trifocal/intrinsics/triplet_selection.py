@@ -74,6 +74,7 @@ def select_camera_triplets(
             options.max_triplets,
             keypoints=data.keypoints,
             workers=options.workers,
+            seed=options.seed,
         )
     if not triplets:
         raise CalibrationError(
