@@ -57,7 +57,16 @@ BENCHMARKS = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCHMARKS))
 from benchlib import quiet_stderr  # noqa: E402
 
-STAGES = ("read", "tracks", "focal_search", "tensors", "solve", "polish", "assessment")
+STAGES = (
+    "read",
+    "tracks",
+    "focal_search",
+    "tensors",
+    "solve",
+    "lens_search",
+    "polish",
+    "assessment",
+)
 DEFAULT_INPUTS = (
     "demo,fountain,herz-jesus,fountain-default,herz-jesus-default,facade,straight,"
     "telephoto,kitti,rendered30,synthetic300,synthetic1000"

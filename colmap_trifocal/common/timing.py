@@ -7,7 +7,16 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 #: The stages of one camera's calibration, in the order they run.
-STAGES = ("read", "tracks", "focal_search", "tensors", "solve", "polish", "assessment")
+STAGES = (
+    "read",
+    "tracks",
+    "focal_search",
+    "tensors",
+    "solve",
+    "lens_search",
+    "polish",
+    "assessment",
+)
 
 
 class StageClock:

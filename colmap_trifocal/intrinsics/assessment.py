@@ -205,7 +205,15 @@ def with_lens(
     )
     if camera_model not in PINHOLE_MODELS:
         std = np.maximum(lens.intrinsics_std / focal_scale, relative_std)
-        return lens.intrinsics.copy(), std, [float(v) for v in lens.distortion], None
+        note = None
+        if lens.misfit:
+            note = (
+                f"the {camera_model} camera cannot hold this lens's distortion (no "
+                "triplet fits it as well as a projective camera): its closest camera, "
+                "each std widened to the lens search's; a model with more distortion "
+                "terms (RADIAL, OPENCV) would fit it"
+            )
+        return lens.intrinsics.copy(), std, [float(v) for v in lens.distortion], note
     shift = np.abs(lens.intrinsics - intrinsics) / focal_scale
     note = (
         f"radial distortion in the tracks (k {words}) that the {camera_model} camera "

@@ -6,8 +6,12 @@
     for each start candidate (the first; other starts while most tensors disagree):
         tensors  = estimator.at(start, previous)                  # tensors (reused)
         solution = solve_with_fallback(tensors, start)            # solve (and a restart)
+        (most disagree at the first start, a radial model with no distortion stored:
+         warp = search_lens(tracks)                                # lens_search
+         the same on the warped tracks, from the warp's focal length)
     polished = polish(solution, tracks)                            # polish (msac-opt)
-    result   = assess(polished, solution)                          # assessment
+    lens     = estimate_distortion(polished, raw tracks)           # polish (msac-opt)
+    result   = assess(polished, lens, solution)                    # assessment
 
 Each line is one stage with a typed input and output; the seconds of each go into the
 result (:class:`..common.timing.StageClock`). Intrinsics in pixels, COLMAP's pixel
@@ -17,7 +21,7 @@ convention (the centre of the top-left pixel at (0.5, 0.5)).
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -30,7 +34,8 @@ from .assessment import assess
 from .camera_input import CameraInput, camera_input
 from .focal_search import FocalSearchResult, search_focal
 from .fundamental import calibrate_fundamental
-from .lens_distortion import estimate_distortion
+from .lens_distortion import LensDistortion, LensStart, distortion_model, estimate_distortion
+from .lens_search import LensSearchResult, polynomial_start, search_lens
 from .observability import tolerance
 from .options import CalibrationOptions
 from .parametrization import FULL, HELD, SINGLE_FOCAL, FreeParameters
@@ -47,6 +52,9 @@ from .start_candidates import StartCandidate, first_start, moved_far, other_star
 from .tensor_set import TensorEstimator, TensorSet
 from .triplet_selection import CameraTracks, select_camera_triplets
 
+#: Radial terms (k1[, k2]) of the stored models the lens search can start, COLMAP's
+#: order (they come first among the model's distortion parameters).
+RADIAL_PARAMETERS = {"SIMPLE_RADIAL": 1, "RADIAL": 2, "OPENCV": 2}
 #: Tensors that must agree with an estimate for it to stand (fewer when the camera
 #: has fewer triplets): below, every value is held at the start.
 MIN_AGREEING = 3
@@ -69,6 +77,20 @@ class Attempt:
     def majority_agrees(self) -> bool:
         """At least half the tensors agree: no other start is tried."""
         return 2 * self.agreeing >= len(self.fallback.solution.inlier_tensors)
+
+
+@dataclass
+class _Warped:
+    """A run on the lens search's warped tracks (:func:`_through_lens_search`): its
+    input and tracks (warped), the warp's focal search, the attempt, its polish and the
+    lens stage that adjusted the stored model's distortion from the raw tracks."""
+
+    data: CameraInput
+    tracks: CameraTracks
+    search: FocalSearchResult
+    attempt: Attempt
+    polished: Polished
+    lens: LensDistortion
 
 
 def calibrate_camera(
@@ -150,17 +172,63 @@ def _calibrate_method(
     options: CalibrationOptions,
     clock: StageClock,
 ) -> CameraCalibration:
-    """One trifocal variant: the start candidates, the polish and the assessment."""
+    """One trifocal variant: the start candidates, the polish and the assessment; where
+    most tensors disagree at the first start on a camera that may hold radial
+    distortion, the lens search's warp (:mod:`.lens_search`) and everything again on
+    the warped tracks first."""
     camera = data.camera
-    first = first_start(data.prior, search)
-    best = _attempt(first, None, data, estimator, method, options, clock)
-    for candidate in other_starts(search, first, best.tensors.start, method, options):
+    first = _attempt(first_start(data.prior, search), None, data, estimator, method, options, clock)
+    warped: _Warped | None = None
+    lens: LensDistortion | None = None
+    spent = 0
+    if not first.majority_agrees and _lens_search_applies(camera, method, options):
+        warped, spent = _through_lens_search(data, tracks, estimator, method, options, clock)
+    if warped is not None:
+        data, tracks, search = warped.data, warped.tracks, warped.search
+        best, polished, lens = warped.attempt, warped.polished, warped.lens
+    else:
+        best = _best_attempt(first, data, tracks, search, estimator, method, options, clock)
+        best, polished, lens = _finish(data, tracks, best, method, options, clock)
+    with clock("assessment"):
+        result = assess(
+            data,
+            method,
+            best.candidate,
+            best.tensors.start,
+            best.tensors.tensors,
+            best.fallback,
+            polished,
+            search,
+            tracks.tracks,
+            lens,
+            options.workers,
+        )
+    result.seconds = clock.total
+    result.stage_seconds = clock.as_dict()
+    result.tensor_starts = estimator.starts_used + spent
+    logger.info("camera %d: %s", camera.camera_id, clock.summary())
+    return result
+
+
+def _best_attempt(
+    first: Attempt,
+    data: CameraInput,
+    tracks: CameraTracks,
+    search: FocalSearchResult | None,
+    estimator: TensorEstimator,
+    method: str,
+    options: CalibrationOptions,
+    clock: StageClock,
+) -> Attempt:
+    """The first start's attempt, or the other starts' best while most tensors disagree."""
+    best = first
+    for candidate in other_starts(search, first.candidate, best.tensors.start, method, options):
         if best.majority_agrees or not estimator.can_afford(len(tracks.triplets)):
             break
         logger.info(
             "camera %d: %d of %d tensors agree; estimating them again from f = %.1f px "
             "(focal search)",
-            camera.camera_id,
+            data.camera.camera_id,
             best.agreeing,
             len(best.fallback.solution.inlier_tensors),
             candidate.start[0],
@@ -168,6 +236,23 @@ def _calibrate_method(
         other = _attempt(candidate, best.tensors, data, estimator, method, options, clock)
         if other.agreeing > best.agreeing:
             best = other
+    return best
+
+
+def _finish(
+    data: CameraInput,
+    tracks: CameraTracks,
+    best: Attempt,
+    method: str,
+    options: CalibrationOptions,
+    clock: StageClock,
+    warp: LensSearchResult | None = None,
+    raw: dict[tuple[int, int, int], np.ndarray] | None = None,
+) -> tuple[Attempt, Polished, LensDistortion | None]:
+    """The estimate (every value held where nothing agrees), its polish and the lens
+    stage; ``tracks`` warped by ``warp`` from the ``raw`` ones (per triplet, pixels) have
+    the distortion adjusted from the raw tracks, started from the warp's polynomial."""
+    camera = data.camera
     with clock("solve"):
         if _nothing_agrees(best, method):
             logger.info(
@@ -200,6 +285,9 @@ def _calibrate_method(
             )
         lens = None
         if method == "msac-opt" and options.triplet_bundle:
+            observed = None
+            if warp is not None and raw is not None:
+                observed = LensStart(raw, _distortion_start(camera, warp, raw, polished.intrinsics))
             lens = estimate_distortion(
                 best.tensors.tensors,
                 tracks.by_images(),
@@ -210,26 +298,108 @@ def _calibrate_method(
                 options.tau,
                 fallback.solution.inlier_tensors,
                 options.workers,
+                observed,
             )
-    with clock("assessment"):
-        result = assess(
-            data,
-            method,
-            best.candidate,
-            start,
-            best.tensors.tensors,
-            fallback,
-            polished,
-            search,
-            tracks.tracks,
-            lens,
+    return best, polished, lens
+
+
+def _lens_search_applies(camera: CameraInfo, method: str, options: CalibrationOptions) -> bool:
+    """Whether the lens search may run: the polished variant, a focal search, and a
+    stored model with radial distortion that holds none yet (a pinhole stays pinhole)."""
+    return (
+        method == "msac-opt"
+        and options.triplet_bundle
+        and options.focal_search
+        and distortion_model(camera) == camera.model
+        and camera.model in RADIAL_PARAMETERS
+    )
+
+
+def _through_lens_search(
+    data: CameraInput,
+    tracks: CameraTracks,
+    estimator: TensorEstimator,
+    method: str,
+    options: CalibrationOptions,
+    clock: StageClock,
+) -> tuple[_Warped | None, int]:
+    """The run on the lens search's warped tracks, and the refinement starts it spent;
+    None where the search finds no clear warp, the tensors agree on none of its warps
+    (:meth:`.LensSearchResult.candidates`), or the lens stage does not confirm the
+    distortion (the unwarped run then goes on as it would have)."""
+    camera = data.camera
+    size = (camera.width, camera.height)
+    rng = np.random.default_rng(
+        np.random.SeedSequence(options.seed, spawn_key=(len(tracks.triplets) + 1,))
+    )
+    with clock("lens_search"):
+        found = search_lens(
+            tracks.tracks[: options.search_triplets],
+            data.prior,
+            rng,
+            options.tensor.inlier_threshold_px,
+            size,
             options.workers,
         )
-    result.seconds = clock.total
-    result.stage_seconds = clock.as_dict()
-    result.tensor_starts = estimator.starts_used
-    logger.info("camera %d: %s", camera.camera_id, clock.summary())
-    return result
+    logger.info(
+        "camera %d: lens search: division %.2f, %.1f px (the unwarped tracks cost %.1fx; %s)",
+        camera.camera_id,
+        found.division,
+        found.focal.focal,
+        found.ratio,
+        "used" if found.clear else "not clear: not used",
+    )
+    if not found.clear:
+        return None, 0
+    spent = 0
+    for division in found.candidates():
+        warp = replace(found, division=division)
+        keypoints = {image: warp.undistort(k) for image, k in data.keypoints.items()}
+        warped_data = CameraInput(camera, data.prior, keypoints, data.matches)
+        warped = CameraTracks(
+            tracks.triplets, [warp.undistort(x) for x in tracks.tracks], tracks.sequence
+        )
+        warped_estimator = TensorEstimator(warped, camera.camera_id, options, estimator.seeds)
+        # One start per warp: where its tensors do not agree, the next warp, then the
+        # unwarped run as it would have gone on.
+        start = first_start(data.prior, warp.focal)
+        best = _attempt(start, None, warped_data, warped_estimator, method, options, clock)
+        spent += warped_estimator.starts_used
+        if not _nothing_agrees(best, method):
+            break
+        logger.info(
+            "camera %d: %d of %d tensors agree on the tracks warped with division %.2f",
+            camera.camera_id,
+            best.agreeing,
+            len(best.tensors.tensors),
+            division,
+        )
+    else:
+        return None, spent
+    best, polished, lens = _finish(
+        warped_data, warped, best, method, options, clock, warp, tracks.by_images()
+    )
+    if lens is None or not lens.present:
+        logger.info(
+            "camera %d: the lens adjustment did not confirm the warp: not used", camera.camera_id
+        )
+        return None, spent
+    return _Warped(warped_data, warped, warp.focal, best, polished, lens), spent
+
+
+def _distortion_start(
+    camera: CameraInfo,
+    warp: LensSearchResult,
+    raw: dict[tuple[int, int, int], np.ndarray],
+    intrinsics: np.ndarray,
+) -> np.ndarray:
+    """The stored model's distortion (COLMAP's order) nearest the warp at ``intrinsics``:
+    its radial terms fitted out to the farthest raw track, the rest 0."""
+    farthest = max(float(np.max(np.linalg.norm(x - warp.centre, axis=-1))) for x in raw.values())
+    radial = polynomial_start(warp, intrinsics, RADIAL_PARAMETERS[camera.model], farthest)
+    start = np.zeros(len(camera.distortion))
+    start[: len(radial)] = radial
+    return start
 
 
 def _attempt(

@@ -42,6 +42,7 @@ from ..geometry.tensor_estimation import TripletTensor
 from .bundle_information import reduced_information
 from .parametrization import FreeParameters
 from .triplet_bundle import (
+    _inlier_pixels,
     _one_step_jackknife_std,
     _refined_directions,
     _shared_camera,
@@ -76,6 +77,19 @@ ROUNDS = 2
 
 
 @dataclass
+class LensStart:
+    """Raw tracks, and where their distortion starts, for tracks that were warped.
+
+    Attributes:
+        tracks: per triplet (image ids), its tracks (3, n, 2) as observed, pixels.
+        distortion: the stored model's extra parameters to start from (COLMAP's order).
+    """
+
+    tracks: dict[tuple[int, int, int], np.ndarray]
+    distortion: np.ndarray
+
+
+@dataclass
 class LensDistortion:
     """The camera with its distortion estimated from the agreeing triplets.
 
@@ -93,6 +107,9 @@ class LensDistortion:
         screened: the adjustment was not run: the screen's statistic (``statistic``,
             one Gauss–Newton step) showed no sign of distortion; ``distortion`` is 0
             and the std unknown (NaN).
+        misfit: the model cannot hold the lens's distortion (warped tracks only: no
+            triplet fits it as well as a projective camera); the values are its
+            closest camera's, their std at least their distance from the warp's.
     """
 
     camera_model: str
@@ -104,6 +121,7 @@ class LensDistortion:
     threshold: float
     agreeing: int
     screened: bool = False
+    misfit: bool = False
 
     @property
     def present(self) -> bool:
@@ -118,6 +136,7 @@ class LensDistortion:
             "params": [float(v) for v in self.distortion],
             "std": [float(v) if np.isfinite(v) else None for v in self.distortion_std],
             "screened": self.screened,
+            "misfit": self.misfit,
             "statistic": float(self.statistic),
             "threshold": float(self.threshold),
             "agreeing": self.agreeing,
@@ -143,6 +162,7 @@ def estimate_distortion(
     tau: float,
     agreeing_tensors: np.ndarray | None = None,
     workers: int | None = None,
+    observed: LensStart | None = None,
 ) -> LensDistortion | None:
     """The camera's distortion, focal length and principal point from its triplets.
 
@@ -157,6 +177,10 @@ def estimate_distortion(
         agreeing_tensors: (n,) bool, the tensors that agree with ``estimate`` (the
             screen reads only those; default all).
         workers: threads for the per-triplet work (None: one per core).
+        observed: where ``tracks`` were warped from the raw keypoints (the lens
+            search, :mod:`.lens_search`): the raw tracks and the distortion the
+            adjustment starts from; the distortion is then known to be there (no
+            screen) and is adjusted from the raw tracks.
 
     Returns None when the distortion is taken as stored, the solve estimates nothing,
     fewer than ``MIN_TRIPLETS`` triplets agree, or Ceres fails.
@@ -175,9 +199,11 @@ def estimate_distortion(
     significance = SIGNIFICANCE if camera_model == camera.model else PINHOLE_SIGNIFICANCE
     mask = np.ones(len(tensors), bool) if agreeing_tensors is None else agreeing_tensors
     screen_tensors = [t for t, keep in zip(tensors, mask, strict=True) if keep]
-    screened = _screen(
-        screen_tensors, tracks, start, intrinsics, setup, camera, camera_model, workers
-    )
+    screened = None
+    if observed is None:
+        screened = _screen(
+            screen_tensors, tracks, start, intrinsics, setup, camera, camera_model, workers
+        )
     if screened is not None and screened < SCREEN_FACTOR * chi2.isf(significance, 1):
         # Freeing k would not lower the cost by a fraction of what counts: not run.
         zeros = np.zeros(len(CameraInfo.blank(camera_model).distortion))
@@ -192,18 +218,36 @@ def estimate_distortion(
             agreeing=len(screen_tensors),
             screened=True,
         )
-    observed = observed_tracks(tensors, tracks, start, MAX_TRACKS, workers)
-    shared = _shared_camera(observed, start, intrinsics, camera_model, size, workers)
+    fits = observed_tracks(tensors, tracks, start, MAX_TRACKS, workers)
+    keypoints, distortion = None, None
+    if observed is not None:
+        keypoints = [_inlier_pixels(fit.tensor, observed.tracks, MAX_TRACKS) for fit in fits]
+        distortion = observed.distortion
+    shared = _shared_camera(
+        fits, start, intrinsics, camera_model, size, workers, keypoints, distortion
+    )
     if shared is None:
         return None
     everything = list(range(len(shared.triplets)))
     agreeing: list[int] = []
     with keep_colmap_quiet():
+        if observed is not None:
+            # The start's distortion is the warp's nearest polynomial, not the
+            # camera's: every triplet adjusted with it first, so that λ compares fits.
+            if not shared.adjust(everything, refine_focal, refine_principal_point, True):
+                return None
+        misfit = False
         for _ in range(ROUNDS):
             stale = [p for p in everything if p not in agreeing]
             if stale and not shared.adjust_each(stale):
                 return None
             chosen = [p for p, ratio in enumerate(shared.ratios()) if ratio < tau**2]
+            if len(chosen) < MIN_TRIPLETS and observed is not None and not agreeing:
+                # No triplet fits the model as well as a projective camera: the model
+                # cannot hold this lens. The tensors that agreed on the warped tracks
+                # give its closest camera (its std widened below).
+                misfit = True
+                chosen = [p for p, t in enumerate(shared.triplets) if mask[t.index]]
             if len(chosen) < MIN_TRIPLETS:
                 return None
             if chosen == agreeing:
@@ -211,6 +255,8 @@ def estimate_distortion(
             agreeing = chosen
             if not shared.adjust(agreeing, refine_focal, refine_principal_point, True):
                 return None
+            if misfit:
+                break
         without = _cost_without_distortion(shared, agreeing, refine_focal, refine_principal_point)
         # At the optimum already: the covariance of the adjustment with its gauge fixed.
         adjuster = shared.adjuster(agreeing, refine_focal, refine_principal_point, True, True)
@@ -235,6 +281,9 @@ def estimate_distortion(
     if jackknife is not None:
         intrinsics_std = np.maximum(intrinsics_std, jackknife[:4])
         distortion_std = np.maximum(distortion_std, jackknife[4:])
+    if misfit:
+        # Two cameras explain the tracks: the warp's (``estimate``) and the model's.
+        intrinsics_std = np.maximum(intrinsics_std, np.abs(fitted.intrinsics - intrinsics))
     return LensDistortion(
         camera_model=camera_model,
         intrinsics=fitted.intrinsics,
@@ -244,6 +293,7 @@ def estimate_distortion(
         statistic=(without - with_distortion) / variance,
         threshold=float(chi2.isf(significance, len(extra))),
         agreeing=len(agreeing),
+        misfit=misfit,
     )
 
 

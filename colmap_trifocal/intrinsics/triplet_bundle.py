@@ -241,12 +241,22 @@ class _Triplet:
 class _SharedCamera:
     """A pycolmap reconstruction: one camera, each triplet its own three images and points."""
 
-    def __init__(self, intrinsics: np.ndarray, camera_model: str, width: int, height: int):
+    def __init__(
+        self,
+        intrinsics: np.ndarray,
+        camera_model: str,
+        width: int,
+        height: int,
+        distortion: np.ndarray | None = None,
+    ):
         """A camera of ``camera_model`` (any of :data:`..database.cameras.SUPPORTED_MODELS`)
-        at (fx, fy, cx, cy), pixels, its distortion parameters 0."""
+        at (fx, fy, cx, cy), pixels, its distortion parameters ``distortion`` (COLMAP's
+        order; default 0)."""
         self.reconstruction = pycolmap.Reconstruction()
         blank = pycolmap.Camera.create_from_model_name(_CAMERA_ID, camera_model, 1.0, width, height)
         zero = CameraInfo(_CAMERA_ID, camera_model, width, height, np.zeros(len(blank.params)))
+        if distortion is not None:
+            zero = zero.with_distortion(distortion)
         camera = zero.with_intrinsics(*map(float, intrinsics)).to_pycolmap()
         self.reconstruction.add_camera_with_trivial_rig(camera)
         self.triplets: list[_Triplet] = []
@@ -271,12 +281,16 @@ class _SharedCamera:
             ]
         )
 
-    def add(self, observed: _Observed, cameras: np.ndarray) -> None:
-        """Add a triplet's tracks with its calibrated cameras (3, 3, 4)."""
-        pixels = observed.pixels
+    def add(
+        self, observed: _Observed, cameras: np.ndarray, keypoints: np.ndarray | None = None
+    ) -> None:
+        """Add a triplet's tracks with its calibrated cameras (3, 3, 4): its points
+        triangulated from its (undistorted) tracks, observed at ``keypoints`` (3, n, 2)
+        pixels where the camera's distortion is to explain them (default: the tracks)."""
         intrinsics = self.intrinsics()
-        normalised = (pixels - intrinsics[2:]) / intrinsics[:2]
+        normalised = (observed.pixels - intrinsics[2:]) / intrinsics[:2]
         points = triangulate(cameras, normalised)
+        pixels = observed.pixels if keypoints is None else keypoints
         first = 3 * len(self.triplets) + 1
         image_ids = (first, first + 1, first + 2)
         for view, image_id in enumerate(image_ids):
@@ -694,14 +708,20 @@ def _shared_camera(
     camera_model: str,
     size: tuple[int, int],
     workers: int | None = None,
+    keypoints: list[np.ndarray] | None = None,
+    distortion: np.ndarray | None = None,
 ) -> _SharedCamera | None:
     """Every triplet whose calibrated cameras can be formed at K, in one reconstruction
-    (the cameras over ``workers`` threads; None: one per core)."""
-    shared = _SharedCamera(intrinsics, camera_model, *size)
+    (the cameras over ``workers`` threads; None: one per core). With ``keypoints`` (per
+    triplet of ``observed``, (3, n, 2) pixels) the triplets are observed there through
+    a camera whose distortion starts at ``distortion`` (:meth:`_SharedCamera.add`)."""
+    shared = _SharedCamera(intrinsics, camera_model, *size, distortion)
     jobs = [(triplet, start, intrinsics) for triplet in observed]
-    for triplet, cameras in zip(observed, map_jobs(_cameras_job, jobs, workers), strict=True):
+    seen = keypoints if keypoints is not None else [None] * len(observed)
+    cameras_of = map_jobs(_cameras_job, jobs, workers)
+    for triplet, cameras, at in zip(observed, cameras_of, seen, strict=True):
         if cameras is not None and np.all(np.isfinite(cameras)):
-            shared.add(triplet, cameras)
+            shared.add(triplet, cameras, at)
     return shared if shared.triplets else None
 
 

@@ -148,3 +148,31 @@ def with_radial_distortion(scene: SyntheticScene, k1: float, k2: float = 0.0) ->
     shape = scene.observations.shape[:2]
     observed = np.ones(shape, dtype=bool) if scene.visible is None else scene.visible
     return replace(scene, observations=np.where(observed[..., None], distorted, 0.0))
+
+
+def with_division_distortion(scene: SyntheticScene, division: float) -> SyntheticScene:
+    """The scene seen through a lens that follows Fitzgibbon's division model: each
+    observed pixel ``p`` becomes the ``d`` with ``p = c + (d − c) / (1 + λ r²)``,
+    ``r = |d − c| / s`` (``λ = division``; ``c`` the scene's principal point, ``s`` half
+    the image diagonal). ``λ < 0`` is barrel distortion; no COLMAP model holds it
+    exactly, as with many real wide lenses. Returns a copy (observations only).
+
+    Solves ``λ r_u r² − r + r_u = 0`` for the distorted radius ``r`` (the root that
+    tends to ``r_u`` as ``λ → 0``); ``r_u = |p − c| / s``.
+    """
+    centre = np.asarray(scene.intrinsics[2:4], dtype=float)
+    scale = 0.5 * float(np.hypot(scene.width, scene.height))
+    offset = scene.observations - centre
+    undistorted = np.linalg.norm(offset, axis=-1, keepdims=True) / scale
+    product = division * undistorted
+    with np.errstate(divide="ignore", invalid="ignore"):
+        radius = np.where(
+            np.abs(product) > 1e-12,
+            (1.0 - np.sqrt(1.0 - 4.0 * product * undistorted)) / (2.0 * product),
+            undistorted,
+        )
+        ratio = np.where(undistorted > 0, radius / undistorted, 1.0)
+    shape = scene.observations.shape[:2]
+    observed = np.ones(shape, dtype=bool) if scene.visible is None else scene.visible
+    distorted = centre + offset * ratio
+    return replace(scene, observations=np.where(observed[..., None], distorted, 0.0))

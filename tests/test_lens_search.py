@@ -1,0 +1,73 @@
+"""The lens search (division warp and focal length where no tensor agrees): the warp
+undoes a division-model lens exactly, its polynomial start matches COLMAP's k1, it
+finds strong barrel distortion and leaves an undistorted lens alone."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from colmap_trifocal import CalibrationOptions
+from colmap_trifocal.database.cameras import CameraInfo
+from colmap_trifocal.intrinsics.camera_input import camera_input
+from colmap_trifocal.intrinsics.lens_search import (
+    CLEAR_RATIO,
+    division_undistort,
+    polynomial_start,
+    search_lens,
+)
+from colmap_trifocal.intrinsics.triplet_selection import select_camera_triplets
+from colmap_trifocal.synthetic.database import CAMERA_ID, scene_contents
+from colmap_trifocal.synthetic.lenses import (
+    lens_scene,
+    with_division_distortion,
+    with_radial_distortion,
+)
+
+
+def _search(scene, seed: int = 0):
+    """The lens search over a scene's first triplets, from COLMAP's default camera."""
+    contents = scene_contents(scene)
+    width, height = scene.width, scene.height
+    default = [1.2 * max(width, height), width / 2, height / 2, 0.0]
+    contents.cameras[CAMERA_ID] = CameraInfo(CAMERA_ID, "SIMPLE_RADIAL", width, height, default)
+    options = CalibrationOptions(no_prior=True, seed=seed)
+    images = sorted(contents.keypoints)
+    data = camera_input(contents, contents.cameras[CAMERA_ID], images, options)
+    tracks = select_camera_triplets(data, images, options)
+    return search_lens(
+        tracks.tracks[: options.search_triplets],
+        data.prior,
+        np.random.default_rng(seed),
+        options.tensor.inlier_threshold_px,
+        (width, height),
+    )
+
+
+def test_the_warp_undoes_a_division_lens() -> None:
+    scene = lens_scene(80.0, seed=0)
+    distorted = with_division_distortion(scene, -0.3)
+    centre, scale = scene.intrinsics[2:4], 0.5 * np.hypot(scene.width, scene.height)
+    moved = np.linalg.norm(distorted.observations - scene.observations, axis=-1)
+    assert moved.max() > 20.0  # a strong lens: tens of pixels in the corners
+    undone = division_undistort(distorted.observations, centre, scale, -0.3)
+    np.testing.assert_allclose(undone, scene.observations, atol=1e-9)
+
+
+def test_the_polynomial_start_is_colmaps_k1_for_a_mild_warp() -> None:
+    """To first order the division model is ``x_d = x_u (1 + λ r_u²)``, so COLMAP's
+    ``k1 = λ f² / s²``."""
+    scene = lens_scene(60.0, seed=0)
+    found = _search(with_division_distortion(scene, -0.02))
+    found.division = -0.02
+    focal = scene.intrinsics[0]
+    (k1,) = polynomial_start(found, scene.intrinsics, 1, 0.5 * found.scale)
+    assert abs(k1 / (-0.02 * focal**2 / found.scale**2) - 1.0) < 0.03
+
+
+def test_strong_barrel_distortion_is_found_and_a_pinhole_lens_left_alone() -> None:
+    scene = lens_scene(80.0, seed=2)
+    barrel = _search(with_radial_distortion(scene, -0.2))
+    assert barrel.clear and -0.6 < barrel.division < -0.2, barrel.division
+    assert abs(barrel.focal.focal / scene.intrinsics[0] - 1.0) < 0.05
+    pinhole = _search(scene)
+    assert not pinhole.clear and pinhole.ratio < CLEAR_RATIO, (pinhole.division, pinhole.ratio)
