@@ -177,7 +177,10 @@ def _calibrate_method(
     distortion, the lens search's warp (:mod:`.lens_search`) and everything again on
     the warped tracks first."""
     camera = data.camera
-    first = _attempt(first_start(data.prior, search), None, data, estimator, method, options, clock)
+    # The restart waits for the lens search's verdict: on a lens it would refine tensors
+    # the warp is about to replace.
+    candidate = first_start(data.prior, search)
+    first = _attempt(candidate, None, data, estimator, method, options, clock, restart=False)
     warped: _Warped | None = None
     lens: LensDistortion | None = None
     spent = 0
@@ -187,6 +190,7 @@ def _calibrate_method(
         data, tracks, search = warped.data, warped.tracks, warped.search
         best, polished, lens = warped.attempt, warped.polished, warped.lens
     else:
+        first = _restarted(first, data, estimator, method, options, clock)
         best = _best_attempt(first, data, tracks, search, estimator, method, options, clock)
         best, polished, lens = _finish(data, tracks, best, method, options, clock)
     with clock("assessment"):
@@ -410,11 +414,27 @@ def _attempt(
     method: str,
     options: CalibrationOptions,
     clock: StageClock,
+    restart: bool = True,
 ) -> Attempt:
-    """The tensors at a start, their solve, and the restart when the estimate lands far."""
+    """The tensors at a start, their solve, and (``restart``) the restart when the
+    estimate lands far (:func:`_restarted`)."""
     with clock("tensors"):
         tensors = estimator.at(candidate.start, previous)
     attempt = _solved(candidate, tensors, data, estimator, method, options, clock)
+    return _restarted(attempt, data, estimator, method, options, clock) if restart else attempt
+
+
+def _restarted(
+    attempt: Attempt,
+    data: CameraInput,
+    estimator: TensorEstimator,
+    method: str,
+    options: CalibrationOptions,
+    clock: StageClock,
+) -> Attempt:
+    """The attempt with its disagreeing tensors estimated again from its estimate and
+    solved again, where the estimate landed far from the start (else as it is)."""
+    tensors = attempt.tensors
     point = restart_point(attempt.fallback, tensors.start)
     if (
         options.restart
@@ -428,7 +448,7 @@ def _attempt(
         )
         with clock("tensors"):
             tensors = estimator.at(point, attempt.tensors)
-        attempt = _solved(candidate, tensors, data, estimator, method, options, clock)
+        attempt = _solved(attempt.candidate, tensors, data, estimator, method, options, clock)
     return attempt
 
 
