@@ -133,8 +133,9 @@ def test_a_100_degree_lens_no_tensor_agrees_on_is_found_by_the_lens_search() -> 
 def test_a_lens_the_model_cannot_hold_ends_no_further_than_its_start() -> None:
     """A drone-like survey (a facade 5 % relief, VGA, 84°) through a lens that follows the
     division model (λ = −0.3), stored as SIMPLE_RADIAL: k1 alone cannot hold it, so no
-    triplet fits the model as well as a projective camera. The result is the model's
-    closest camera, said so, with a std that covers the truth, and nothing reported
+    triplet fits the model as well as a projective camera. The result is the estimate on
+    the warped tracks (f 0.3 % off; the model's closest camera is 2.8 % off), said so,
+    with stds that cover the truth and the closest camera, and nothing reported
     determined ends further from the truth than the default camera (before the lens
     search: every value held there, f 116 % off)."""
     focal = 0.5 * 640 / np.tan(np.deg2rad(42.0))
@@ -157,7 +158,7 @@ def test_a_lens_the_model_cannot_hold_ends_no_further_than_its_start() -> None:
     error = np.abs(result.intrinsics - truth)
     assert result.lens_distortion is not None and result.lens_distortion["misfit"]
     assert "cannot hold this lens" in (result.diagnosis or "")
-    assert abs(result.fx / truth[0] - 1) < 0.1
+    assert abs(result.fx / truth[0] - 1) < 0.01
     for index, name in enumerate(NAMES):
         std = result.std[name]
         assert std is not None and error[index] < 2.5 * std, (name, error[index], std)

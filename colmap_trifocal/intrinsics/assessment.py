@@ -209,8 +209,9 @@ def with_lens(
         if lens.misfit:
             note = (
                 f"the {camera_model} camera cannot hold this lens's distortion (no "
-                "triplet fits it as well as a projective camera): its closest camera, "
-                "each std widened to the lens search's; a model with more distortion "
+                "triplet fits it as well as a projective camera): the estimate on the "
+                "lens search's warped tracks and the warp's nearest k, each std "
+                "widened to the model's closest camera; a model with more distortion "
                 "terms (RADIAL, OPENCV) would fit it"
             )
         return lens.intrinsics.copy(), std, [float(v) for v in lens.distortion], note

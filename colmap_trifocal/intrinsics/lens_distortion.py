@@ -108,8 +108,9 @@ class LensDistortion:
             one Gauss–Newton step) showed no sign of distortion; ``distortion`` is 0
             and the std unknown (NaN).
         misfit: the model cannot hold the lens's distortion (warped tracks only: no
-            triplet fits it as well as a projective camera); the values are its
-            closest camera's, their std at least their distance from the warp's.
+            triplet fits it as well as a projective camera); the values are the warped
+            estimate's and the warp's nearest polynomial, each std at least its
+            distance from the model's closest camera.
     """
 
     camera_model: str
@@ -281,14 +282,19 @@ def estimate_distortion(
     if jackknife is not None:
         intrinsics_std = np.maximum(intrinsics_std, jackknife[:4])
         distortion_std = np.maximum(distortion_std, jackknife[4:])
-    if misfit:
-        # Two cameras explain the tracks: the warp's (``estimate``) and the model's.
+    reported, distortion_reported = fitted.intrinsics, params[extra]
+    if misfit and observed is not None:
+        # Two cameras explain the tracks: the warp's (``estimate``, on which the tensors
+        # agreed) and the model's closest; the warp's is reported, with the warp's
+        # nearest polynomial, each std at least the distance between the two.
+        reported, distortion_reported = intrinsics, observed.distortion
         intrinsics_std = np.maximum(intrinsics_std, np.abs(fitted.intrinsics - intrinsics))
+        distortion_std = np.maximum(distortion_std, np.abs(params[extra] - observed.distortion))
     return LensDistortion(
         camera_model=camera_model,
-        intrinsics=fitted.intrinsics,
+        intrinsics=reported,
         intrinsics_std=intrinsics_std,
-        distortion=params[extra],
+        distortion=distortion_reported,
         distortion_std=distortion_std,
         statistic=(without - with_distortion) / variance,
         threshold=float(chi2.isf(significance, len(extra))),
