@@ -43,6 +43,7 @@ import numpy as np
 import pycolmap
 
 from colmap_trifocal import CalibrationOptions, calibrate_contents, calibrate_database
+from colmap_trifocal.common.timing import STAGES
 from colmap_trifocal.database.features import build_database
 from colmap_trifocal.datasets import read_scene
 from colmap_trifocal.datasets.strecha import default_datasets_root, ground_truth_intrinsics
@@ -57,16 +58,6 @@ BENCHMARKS = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCHMARKS))
 from benchlib import quiet_stderr  # noqa: E402
 
-STAGES = (
-    "read",
-    "tracks",
-    "focal_search",
-    "tensors",
-    "solve",
-    "lens_search",
-    "polish",
-    "assessment",
-)
 DEFAULT_INPUTS = (
     "demo,fountain,herz-jesus,fountain-default,herz-jesus-default,facade,straight,"
     "telephoto,kitti,rendered30,synthetic300,synthetic1000"
