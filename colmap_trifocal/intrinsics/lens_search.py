@@ -8,7 +8,8 @@ can only hold the start.
 
 How. Fitzgibbon's one-parameter division model (CVPR 2001),
 ``x_u = c + (x_d − c) / (1 + λ r²)`` with ``r = |x_d − c| / s`` (``c``: the start's
-principal point, ``s``: half the image diagonal, so ``r ≤ 1`` in the corners), is a
+principal point, ``s``: its distance to the farthest image corner, half the diagonal
+for a centred one, so ``r ≤ 1`` in the image), is a
 warp of the pixels that needs no focal length and can be undone in closed form for
 every ``λ > −1`` (barrel distortion: ``λ < 0``). Fitzgibbon's observation is that only
 the right ``λ`` lets straight epipolar geometry explain the matches, whatever the
@@ -63,7 +64,7 @@ class LensSearchResult:
     Attributes:
         division: λ of the best warp (0: none).
         centre: (2,) the warp's centre, pixels.
-        scale: s, half the image diagonal, pixels.
+        scale: s, the distance from ``centre`` to the farthest image corner, pixels.
         focal: the focal search on the tracks warped with ``division``.
         lambdas: (m,) every λ evaluated; ``costs`` (m,) the minimum of its focal search.
         ratio: the cost at λ = 0 over the cost at ``division``.
@@ -108,7 +109,9 @@ def division_undistort(
     undistorted ones under the division model (λ = ``division``, s = ``scale``)."""
     offset = np.asarray(points, float) - centre
     r2 = np.sum(offset**2, axis=-1, keepdims=True) / scale**2
-    return centre + offset / (1.0 + division * r2)
+    # Within the image r ≤ 1 (``scale`` reaches its farthest corner) and λ ≥ −0.8 keep
+    # the denominator ≥ 0.2; points outside stay finite.
+    return centre + offset / np.maximum(1.0 + division * r2, 0.05)
 
 
 def search_lens(
@@ -131,7 +134,8 @@ def search_lens(
         workers: threads (None: one per core).
     """
     centre = np.asarray(start[2:4], float)
-    scale = 0.5 * float(np.hypot(*image_size))
+    corners = np.array([[0.0, 0.0], [image_size[0], 0.0], [0.0, image_size[1]], image_size])
+    scale = float(np.max(np.linalg.norm(corners - centre, axis=1)))
     pairs = [
         (x[a][chosen], x[b][chosen])
         for x in tracks
