@@ -29,6 +29,9 @@ import numpy as np
 
 GAUGE_DIMENSION = 6
 _POINT_COLUMNS = [0, 1, 3]  # dX/d(u, v, ρ) picks these columns of P
+#: ``optimize=True``'s contraction path for two operands, given rather than searched
+#: on every call (the same BLAS contraction, without the search's cost).
+_PAIR_PATH = ["einsum_path", (0, 1)]
 
 
 @dataclass
@@ -146,7 +149,7 @@ def refine_triplet(
         improved = False
         while damping < 1e12:
             V_inv = inverse_3x3(V + damping * V_diagonal + 1e-12 * np.eye(3))
-            WV = np.einsum("anj,njk->ank", W_stack, V_inv, optimize=True).reshape(24, -1)
+            WV = np.einsum("anj,njk->ank", W_stack, V_inv, optimize=_PAIR_PATH).reshape(24, -1)
             S = U + damping * np.diag(np.diag(U)) - WV @ W_flat.T
             b = g_c - WV @ g_p.ravel()
             if not (np.all(np.isfinite(S)) and np.all(np.isfinite(b))):
