@@ -246,7 +246,7 @@ def estimate_distortion(
             if len(chosen) < MIN_TRIPLETS and observed is not None and not agreeing:
                 # No triplet fits the model as well as a projective camera: the model
                 # cannot hold this lens. The tensors that agreed on the warped tracks
-                # give its closest camera (its std widened below).
+                # give its closest camera, which sets the reported std (below).
                 misfit = True
                 chosen = [p for p, t in enumerate(shared.triplets) if mask[t.index]]
             if len(chosen) < MIN_TRIPLETS:

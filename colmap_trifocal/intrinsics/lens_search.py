@@ -1,4 +1,4 @@
-"""The lens search: a division-model warp and a focal length where no tensor agrees.
+"""The lens search: a division-model warp and a focal length where tensors disagree.
 
 Why. Strong barrel distortion (a 100° lens, an action or drone camera: a fifth to a
 third of the radius in the image corners) bends the tracks so far from any pinhole
@@ -9,9 +9,9 @@ can only hold the start.
 How. Fitzgibbon's one-parameter division model (CVPR 2001),
 ``x_u = c + (x_d − c) / (1 + λ r²)`` with ``r = |x_d − c| / s`` (``c``: the start's
 principal point, ``s``: its distance to the farthest image corner, half the diagonal
-for a centred one, so ``r ≤ 1`` in the image), is a
-warp of the pixels that needs no focal length and can be undone in closed form for
-every ``λ > −1`` (barrel distortion: ``λ < 0``). Fitzgibbon's observation is that only
+for a centred one, so ``r ≤ 1`` in the image), is a warp of the pixels that needs no
+focal length and can be undone in closed form for every ``λ > −1`` (barrel
+distortion: ``λ < 0``). Fitzgibbon's observation is that only
 the right ``λ`` lets straight epipolar geometry explain the matches, whatever the
 focal length: for each ``λ`` of :data:`LAMBDAS` every view pair of the first triplets
 gets a robust fundamental matrix (OpenCV's USAC) on the warped tracks, and ``λ`` costs
