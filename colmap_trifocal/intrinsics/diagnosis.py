@@ -90,7 +90,7 @@ def moves_forward(
     ]
     if not consecutive:
         return False
-    chosen = np.unique(np.linspace(0, len(consecutive) - 1, FORWARD_PAIRS).round().astype(int))
+    chosen = evenly_spaced(len(consecutive), FORWARD_PAIRS)
     K_inv = np.linalg.inv(intrinsics_matrix(np.asarray(intrinsics, float)))
     jobs = []
     for a, b in (consecutive[i] for i in chosen):

@@ -107,11 +107,21 @@ def division_undistort(
 ) -> np.ndarray:
     """``c + (x − c) / (1 + λ r²)``, ``r = |x − c| / s``: distorted pixels (..., 2) to
     undistorted ones under the division model (λ = ``division``, s = ``scale``)."""
+    offset, denominator = _division(points, centre, scale, division)
+    return centre + offset / denominator[..., None]
+
+
+def _division(
+    points: np.ndarray, centre: np.ndarray, scale: float, division: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The points' offsets from the centre (..., 2) and the division model's
+    ``1 + λ r²`` at each (...,): the warp divides the offset by it, so it magnifies the
+    image around the point by its inverse."""
     offset = np.asarray(points, float) - centre
-    r2 = np.sum(offset**2, axis=-1, keepdims=True) / scale**2
+    r2 = np.sum(offset**2, axis=-1) / scale**2
     # Within the image r ≤ 1 (``scale`` reaches its farthest corner) and λ ≥ −0.8 keep
     # the denominator ≥ 0.2; points outside stay finite.
-    return centre + offset / np.maximum(1.0 + division * r2, 0.05)
+    return offset, np.maximum(1.0 + division * r2, 0.05)
 
 
 def search_lens(
@@ -176,7 +186,11 @@ def _epipolar_cost(
     (OpenCV USAC), in raw pixels; a pair without one costs the truncation per track."""
     total = 0.0
     for x1, x2 in pairs:
-        u1, u2 = (division_undistort(x, centre, scale, division) for x in (x1, x2))
+        (offset1, denominator1), (offset2, denominator2) = (
+            _division(x, centre, scale, division) for x in (x1, x2)
+        )
+        u1 = centre + offset1 / denominator1[:, None]
+        u2 = centre + offset2 / denominator2[:, None]
         try:
             F, _ = cv2.findFundamentalMat(
                 np.ascontiguousarray(u1),
@@ -192,20 +206,10 @@ def _epipolar_cost(
             total += TRUNCATION_PX**2 * len(x1)
             continue
         # The warp magnifies the image by 1 / (1 + λ r²) around each point.
-        magnification = 0.5 * (
-            _magnification(x1, centre, scale, division)
-            + _magnification(x2, centre, scale, division)
-        )
+        magnification = 0.5 * (1.0 / denominator1 + 1.0 / denominator2)
         distance2 = sampson_squared(F, u1, u2) / magnification**2
         total += float(np.minimum(distance2, TRUNCATION_PX**2).sum())
     return total
-
-
-def _magnification(
-    points: np.ndarray, centre: np.ndarray, scale: float, division: float
-) -> np.ndarray:
-    r2 = np.sum((points - centre) ** 2, axis=-1) / scale**2
-    return 1.0 / (1.0 + division * r2)
 
 
 def sampson_squared(F: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:

@@ -219,9 +219,10 @@ class MethodRun:
             polished = Polished(estimate, fallback.relative_std, best.agreeing, None)
             lens = None
             if method == "msac-opt" and options.triplet_bundle:
+                by_images = self.tracks.by_images()
                 polished = polish(
                     best.tensors.tensors,
-                    self.tracks.by_images(),
+                    by_images,
                     start,
                     estimate,
                     fallback,
@@ -233,7 +234,7 @@ class MethodRun:
                 )
                 lens = estimate_distortion(
                     best.tensors.tensors,
-                    self.tracks.by_images(),
+                    by_images,
                     start,
                     polished.intrinsics,
                     fallback.free_parameters,
