@@ -36,7 +36,8 @@ valid trifocal tensor, and it comes with the covariance of those cameras.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -186,7 +187,7 @@ def estimate_triplet_tensor(
     options: TensorEstimationOptions | None = None,
     second_start: bool = True,
 ) -> TripletTensor | None:
-    """MSAC + Gold Standard tensor for one triplet.
+    """MSAC + Gold Standard tensor for one triplet (:func:`fit_triplet`'s tensor).
 
     Args:
         image_ids: the database image ids of views 1, 2, 3.
@@ -202,6 +203,115 @@ def estimate_triplet_tensor(
     Returns:
         The refined tensor, or None when fewer than ``min_inliers`` tracks agree.
     """
+    fit = fit_triplet(image_ids, x_px, K0, rng, options, second_start)
+    return None if fit is None else fit.tensor
+
+
+@dataclass
+class TripletFit:
+    """One triplet's refined starts at one normalisation K0, and the start it deferred.
+
+    The tensor is the refined start with the lowest MSAC score. ``deferred`` is the
+    calibrated hypothesis where it was left unrefined (``second_start=False``):
+    :meth:`with_second_start` refines it alone, which gives exactly what
+    :func:`fit_triplet` with ``second_start=True`` gives from the same seed, at the cost
+    of one start instead of the hypotheses and both starts again.
+
+    Attributes:
+        image_ids: views 1, 2, 3.
+        x: tracks (3, n, 2) normalised by K0.
+        pixel_scale: (fx0, fy0) of K0, pixels per normalised unit.
+        order: the random order of the tracks every refinement round uses.
+        options: the estimation settings.
+        candidates: per refined start, (BA result, inliers (n,) bool, MSAC score px²).
+        deferred: cameras (P2, P3) of the unrefined calibrated hypothesis, or None.
+    """
+
+    image_ids: tuple[int, int, int]
+    x: np.ndarray = field(repr=False)
+    pixel_scale: np.ndarray
+    order: np.ndarray = field(repr=False)
+    options: TensorEstimationOptions
+    candidates: list[tuple[ProjectiveBAResult, np.ndarray, float]] = field(repr=False)
+    deferred: tuple[np.ndarray, np.ndarray] | None = field(repr=False)
+
+    @cached_property
+    def tensor(self) -> TripletTensor | None:
+        """The lowest-score start's tensor; None when no start refined or fewer than
+        ``min_inliers`` tracks agree with it."""
+        if not self.candidates:
+            return None
+        result, inliers, _ = min(self.candidates, key=lambda c: c[2])
+        if inliers.sum() < self.options.min_inliers:
+            return None
+        P2, P3 = result.P2, result.P3
+        return TripletTensor(
+            image_ids=self.image_ids,
+            tensor=normalize_tensor(tensor_from_cameras(P2, P3)),
+            P2=P2,
+            P3=P3,
+            camera_covariance=result.camera_covariance,
+            num_tracks=self.x.shape[1],
+            num_inliers=int(inliers.sum()),
+            sigma_px=result.sigma,
+            inliers=inliers,
+        )
+
+    def with_second_start(self) -> TripletFit:
+        """The fit with its deferred calibrated hypothesis refined too (itself where
+        nothing was deferred)."""
+        if self.deferred is None:
+            return self
+        return replace(
+            self, candidates=self.candidates + self._refined([self.deferred]), deferred=None
+        )
+
+    def _refined(
+        self, starts: list[tuple[np.ndarray, np.ndarray]]
+    ) -> list[tuple[ProjectiveBAResult, np.ndarray, float]]:
+        """Each start refined (:func:`_refine`), then on to convergence where
+        ``final_ba_tolerance`` asks for it; the starts whose refinement fails dropped."""
+        options = self.options
+        threshold2 = options.inlier_threshold_px**2
+        refined = [
+            _refine(self.x, P2, P3, self.pixel_scale, self.order, threshold2, options, BA_TOLERANCE)
+            for P2, P3 in starts
+        ]
+        candidates = [r for r in refined if r is not None]
+        if options.final_ba_tolerance < BA_TOLERANCE:
+            # With little depth relief (a facade) the BA crawls along a flat valley
+            # (relative decreases below 1e-4 long before the minimum), and each start
+            # can end in its own local minimum: every start is refined on to
+            # convergence and the lowest MSAC score wins (docs/planar_and_sequences.md).
+            candidates = [
+                _refine(
+                    self.x,
+                    result.P2,
+                    result.P3,
+                    self.pixel_scale,
+                    self.order,
+                    threshold2,
+                    options,
+                    options.final_ba_tolerance,
+                    options.final_ba_iterations,
+                )
+                or (result, inliers, score)
+                for result, inliers, score in candidates
+            ]
+        return candidates
+
+
+def fit_triplet(
+    image_ids: tuple[int, int, int],
+    x_px: np.ndarray,
+    K0: np.ndarray,
+    rng: np.random.Generator,
+    options: TensorEstimationOptions | None = None,
+    second_start: bool = True,
+) -> TripletFit | None:
+    """The MSAC hypotheses of one triplet and their refined starts (see the module
+    steps; arguments as :func:`estimate_triplet_tensor`); None when the triplet has
+    fewer tracks than ``min_inliers`` or a minimal sample."""
     options = options or TensorEstimationOptions()
     n = x_px.shape[1]
     if n < max(options.min_inliers, MINIMAL_SAMPLE):
@@ -243,63 +353,22 @@ def estimate_triplet_tensor(
     scores = np.minimum(errors, threshold2).sum(axis=1)
     best = int(np.argmin(scores))
     starts.insert(0, (P2h[best], P3h[best]))
-    if (
-        calibrated is not None
-        and best != len(P2h) - 1
-        and (planar or (options.calibrated_start and second_start))
-    ):
-        starts.append(calibrated)
-    order = rng.permutation(n)
-    refined = [
-        _refine(x, P2, P3, pixel_scale, order, threshold2, options, BA_TOLERANCE)
-        for P2, P3 in starts
-    ]
-    candidates = [r for r in refined if r is not None]
-    if not candidates:
-        return None
-    if options.final_ba_tolerance < BA_TOLERANCE:
-        # With little depth relief (a facade) the BA crawls along a flat valley
-        # (relative decreases below 1e-4 long before the minimum), and each start
-        # can end in its own local minimum: every start is refined on to
-        # convergence and the lowest MSAC score wins (docs/planar_and_sequences.md).
-        candidates = [
-            _refine(
-                x,
-                result.P2,
-                result.P3,
-                pixel_scale,
-                order,
-                threshold2,
-                options,
-                options.final_ba_tolerance,
-                options.final_ba_iterations,
-            )
-            or (result, inliers, score)
-            for result, inliers, score in candidates
-        ]
-    result, inliers, _ = min(candidates, key=lambda c: c[2])
-    if inliers.sum() < options.min_inliers:
-        return None
+    deferred = None
+    if calibrated is not None and best != len(P2h) - 1:
+        if planar or (options.calibrated_start and second_start):
+            starts.append(calibrated)
+        elif options.calibrated_start:
+            deferred = calibrated
+    fit = TripletFit(image_ids, x, pixel_scale, rng.permutation(n), options, [], deferred)
+    fit.candidates = fit._refined(starts)
     logger.debug(
-        "triplet %s: %s%d start(s), %d of %d inliers",
+        "triplet %s: %s%d start(s)%s",
         image_ids,
         f"planar ({plane.share:.0%} on one plane), " if planar and plane is not None else "",
         len(starts),
-        inliers.sum(),
-        n,
+        ", the calibrated one deferred" if deferred is not None else "",
     )
-    P2, P3 = result.P2, result.P3
-    return TripletTensor(
-        image_ids=image_ids,
-        tensor=normalize_tensor(tensor_from_cameras(P2, P3)),
-        P2=P2,
-        P3=P3,
-        camera_covariance=result.camera_covariance,
-        num_tracks=n,
-        num_inliers=int(inliers.sum()),
-        sigma_px=result.sigma,
-        inliers=inliers,
-    )
+    return fit
 
 
 def _refine(

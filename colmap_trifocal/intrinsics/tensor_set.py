@@ -1,10 +1,11 @@
 """The tensors stage: one trifocal tensor per triplet, estimated once and reused.
 
 Each triplet's tensor is first refined from one start, the best MSAC hypothesis
-(:func:`..geometry.tensor_estimation.estimate_triplet_tensor` with
-``second_start=False``). Only the tensors that disagree with the solve's estimate
-are refined again from both starts (the second, the calibrated hypothesis, matters
-where the first ends in a plane-dominated local minimum). When the calibration
+(:func:`..geometry.tensor_estimation.fit_triplet` with ``second_start=False``). Only
+the tensors that disagree with the solve's estimate get the second start, the
+calibrated hypothesis, refined as well (it matters where the first ends in a
+plane-dominated local minimum); at the same K the fit made then is completed, not
+made again. When the calibration
 moves to a new start K, the tensors that agree with K are carried over exactly
 (:meth:`..geometry.tensor_estimation.TripletTensor.renormalised`) and only the
 others are estimated again from K.
@@ -16,14 +17,16 @@ number of worker threads. The work is counted in refinement starts and bounded b
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
 from ..common.errors import CalibrationError
 from ..common.log import logger
 from ..common.parallel import map_jobs
-from ..geometry.tensor_estimation import TripletTensor, estimate_triplet_tensor
+from ..geometry.tensor_estimation import TripletFit, TripletTensor, fit_triplet
 from ..geometry.trifocal import intrinsics_matrix
 from .options import CalibrationOptions
 from .selfcalibration import ConstraintProblem, intrinsics_to_theta
@@ -76,7 +79,7 @@ class TensorEstimator:
     options: CalibrationOptions
     seeds: list[np.random.SeedSequence]
     starts_used: int = 0
-    _cache: dict[tuple, TripletTensor | None] = field(default_factory=dict, repr=False)
+    _cache: dict[tuple, TripletFit | None] = field(default_factory=dict, repr=False)
 
     @property
     def budget(self) -> int:
@@ -128,7 +131,7 @@ class TensorEstimator:
         ]
         if not positions or not self.options.tensor.calibrated_start:
             return None
-        if not self.can_afford(2 * len(positions)):
+        if not self.can_afford(self._second_start_cost(tensors.start, positions)):
             logger.info("camera %d: tensor budget spent; no second starts", self.camera_id)
             return None
         by_triplet = list(tensors.by_triplet)
@@ -154,32 +157,56 @@ class TensorEstimator:
     def _estimate(
         self, start: np.ndarray, positions: list[int], second_start: bool
     ) -> list[TripletTensor | None]:
-        """The tensors of the triplets at ``positions`` from ``start`` (cached)."""
-        key = tuple(np.round(np.asarray(start, float), 9))
+        """The tensors of the triplets at ``positions`` from ``start`` (cached). A second
+        start completes the first start's fit at the same K where there is one (its
+        deferred start alone: one refinement start), else fits from scratch (two)."""
+        key = self._key(start)
         missing = [p for p in positions if (key, p, second_start) not in self._cache]
         K0 = intrinsics_matrix(start)
-        jobs = [
-            (
-                self.tracks.triplets[p].image_ids,
-                self.tracks.tracks[p],
-                K0,
-                self.seeds[p],
-                self.options.tensor,
-                second_start,
-            )
-            for p in missing
-        ]
-        estimated = map_jobs(
-            _estimate_job,
+        jobs: list[Callable[[], TripletFit | None]] = []
+        for p in missing:
+            first = self._cache.get((key, p, False)) if second_start else None
+            if first is not None:
+                jobs.append(first.with_second_start)
+                self.starts_used += first.deferred is not None
+            else:
+                jobs.append(partial(self._fit, p, K0, second_start))
+                self.starts_used += 2 if second_start else 1
+        fits = map_jobs(
+            _call,
             jobs,
             self.options.workers,
             f"camera {self.camera_id}: tensors",
             self.options.progress,
         )
-        self.starts_used += len(missing) * (2 if second_start else 1)
-        for p, tensor in zip(missing, estimated, strict=True):
-            self._cache[(key, p, second_start)] = tensor
-        return [self._cache[(key, p, second_start)] for p in positions]
+        for p, fit in zip(missing, fits, strict=True):
+            self._cache[(key, p, second_start)] = fit
+        return [_tensor(self._cache[(key, p, second_start)]) for p in positions]
+
+    def _second_start_cost(self, start: np.ndarray, positions: list[int]) -> int:
+        """Refinement starts that second starts at ``positions`` from ``start`` take."""
+        key = self._key(start)
+        cost = 0
+        for p in positions:
+            first = self._cache.get((key, p, False))
+            cost += 2 if first is None else int(first.deferred is not None)
+        return cost
+
+    def _fit(self, position: int, K0: np.ndarray, second_start: bool) -> TripletFit | None:
+        """One triplet's fit from K0; its own seed makes it independent of scheduling."""
+        return fit_triplet(
+            self.tracks.triplets[position].image_ids,
+            self.tracks.tracks[position],
+            K0,
+            np.random.default_rng(self.seeds[position]),
+            self.options.tensor,
+            second_start,
+        )
+
+    @staticmethod
+    def _key(start: np.ndarray) -> tuple:
+        """The cache key of a start K (fx, fy, cx, cy), to 1e-9 px."""
+        return tuple(np.round(np.asarray(start, float), 9))
 
 
 def _same(a: TripletTensor, b: TripletTensor | None) -> bool:
@@ -187,9 +214,11 @@ def _same(a: TripletTensor, b: TripletTensor | None) -> bool:
     return b is not None and np.array_equal(a.P2, b.P2) and np.array_equal(a.P3, b.P3)
 
 
-def _estimate_job(job: tuple) -> TripletTensor | None:
-    """One triplet's tensor; its own seed makes results independent of scheduling."""
-    image_ids, tracks, K0, seed, tensor_options, second_start = job
-    return estimate_triplet_tensor(
-        image_ids, tracks, K0, np.random.default_rng(seed), tensor_options, second_start
-    )
+def _call(job: Callable[[], TripletFit | None]) -> TripletFit | None:
+    """Runs one job of :meth:`TensorEstimator._estimate`."""
+    return job()
+
+
+def _tensor(fit: TripletFit | None) -> TripletTensor | None:
+    """A fit's tensor (None without a fit)."""
+    return None if fit is None else fit.tensor
