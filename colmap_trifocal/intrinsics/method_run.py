@@ -197,8 +197,9 @@ class MethodRun:
         lens_start: Callable[[np.ndarray], LensStart] | None = None,
     ) -> Finished:
         """The estimate (every value held where nothing agrees), its polish and the lens
-        stage; ``lens_start`` (the polished intrinsics -> raw tracks and a distortion to
-        start from) where the tracks were warped (:mod:`.lens_route`)."""
+        stage; ``lens_start`` (the estimate -> raw tracks and a distortion to start from)
+        where the tracks were warped (:mod:`.lens_route`), which the lens stage alone
+        adjusts (no polish)."""
         camera, options, method = self.data.camera, self.options, self.method
         with self.clock("solve"):
             if self.nothing_agrees(best):
@@ -217,9 +218,12 @@ class MethodRun:
             estimate = checked_estimate(best, camera.camera_id, method)
         with self.clock("polish"):
             polished = Polished(estimate, fallback.relative_std, best.agreeing, None)
-            lens = None
-            if method == "msac-opt" and options.triplet_bundle:
-                by_images = self.tracks.by_images()
+            if method != "msac-opt" or not options.triplet_bundle:
+                return Finished(best, polished, None)
+            by_images = self.tracks.by_images()
+            if lens_start is None:
+                # On warped tracks the lens stage adjusts K with the distortion from the
+                # raw tracks: polishing K on the warped ones first would only move its start.
                 polished = polish(
                     best.tensors.tensors,
                     by_images,
@@ -232,18 +236,18 @@ class MethodRun:
                     camera.camera_id,
                     options.workers,
                 )
-                lens = estimate_distortion(
-                    best.tensors.tensors,
-                    by_images,
-                    start,
-                    polished.intrinsics,
-                    fallback.free_parameters,
-                    camera,
-                    options.tau,
-                    fallback.solution.inlier_tensors,
-                    options.workers,
-                    None if lens_start is None else lens_start(polished.intrinsics),
-                )
+            lens = estimate_distortion(
+                best.tensors.tensors,
+                by_images,
+                start,
+                polished.intrinsics,
+                fallback.free_parameters,
+                camera,
+                options.tau,
+                fallback.solution.inlier_tensors,
+                options.workers,
+                None if lens_start is None else lens_start(polished.intrinsics),
+            )
         return Finished(best, polished, lens)
 
 
