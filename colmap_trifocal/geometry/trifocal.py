@@ -136,25 +136,12 @@ def calibrate_tensor(T: np.ndarray, K: np.ndarray) -> np.ndarray:
     return normalize_tensor(mixed.reshape(mixed.shape[:-1] + (3, 3)))
 
 
-def _psi(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
-    """ψ(X, Y) = tr X tr Y − 2 tr(XY) for stacks of 3x3 matrices."""
-    return _trace(X) * _trace(Y) - 2.0 * _trace_of_product(X, Y)
-
-
-def _trace(X: np.ndarray) -> np.ndarray:
-    return X[..., 0, 0] + X[..., 1, 1] + X[..., 2, 2]
-
-
-def _trace_of_product(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
-    """tr(XY) without forming XY."""
-    return (X * np.swapaxes(Y, -1, -2)).sum(axis=(-2, -1))
-
-
 def quartic_constraints(T: np.ndarray) -> np.ndarray:
     """The 15 quartic constraints of a calibrated trifocal tensor.
 
-    With ``U_k = T_k T_kᵀ`` and ``V_k = T_k T_{k+1}ᵀ + T_{k+1} T_kᵀ`` (k cyclic):
-    for each cyclic relabelling (1,2,3) → (a,b,c) of the slices,
+    With ``U_k = T_k T_kᵀ`` and ``V_k = T_k T_{k+1}ᵀ + T_{k+1} T_kᵀ`` (k cyclic) and
+    ``ψ(X, Y) = tr X tr Y − 2 tr(XY)``: for each cyclic relabelling (1,2,3) → (a,b,c)
+    of the slices,
 
     * ψ(U_c − U_a, U_c − U_a) − ψ(V_c, V_c)
     * ψ(U_c − U_a, V_a) + ψ(V_b, V_c)
@@ -162,37 +149,45 @@ def quartic_constraints(T: np.ndarray) -> np.ndarray:
     * tr(U_b)² − tr(V_c)² − tr(U_b² − V_c² + (U_c − U_a)²)
     * tr(V_b) tr(U_a − 2U_b − U_c) − tr(V_a) tr(V_c) + 2 tr(V_b U_b)
 
+    Every term is a product of traces and of ``tr(XY)``, which is bilinear, so all of
+    them come from the six traces of (U_1, U_2, U_3, V_1, V_2, V_3) and their 6x6
+    table of ``tr(XY)`` (``Σ X ∘ Y``: the U and V are symmetric), computed at once.
+
     Args:
         T: tensors (..., 3, 3, 3), normally of unit Frobenius norm.
 
     Returns:
-        Constraint values (..., 15); zero for calibrated tensors.
+        Constraint values (..., 15); zero for calibrated tensors, in the order above
+        (the first three for each relabelling, then the last two for each).
     """
     T_transposed = np.swapaxes(T, -1, -2)
     U = T @ T_transposed
     TTn = T @ np.roll(T_transposed, -1, axis=-3)
     V = TTn + np.swapaxes(TTn, -1, -2)
+    M = np.concatenate([U, V], axis=-3).reshape(T.shape[:-3] + (6, 9))
+    t = M[..., [0, 4, 8]].sum(axis=-1)  # traces, (..., 6)
+    G = M @ np.swapaxes(M, -1, -2)  # tr(M_i M_j), (..., 6, 6)
     values = []
     for a, b, c in CYCLIC:
-        Ua, Ub, Uc = U[..., a, :, :], U[..., b, :, :], U[..., c, :, :]
-        Va, Vb, Vc = V[..., a, :, :], V[..., b, :, :], V[..., c, :, :]
-        D = Uc - Ua
-        values.append(_psi(D, D) - _psi(Vc, Vc))
-        values.append(_psi(D, Va) + _psi(Vb, Vc))
-        values.append(_psi(Ua - Ub, Va))
-    for a, b, c in CYCLIC:
-        Ua, Ub, Uc = U[..., a, :, :], U[..., b, :, :], U[..., c, :, :]
-        Va, Vb, Vc = V[..., a, :, :], V[..., b, :, :], V[..., c, :, :]
-        D = Uc - Ua
+        va, vb, vc = 3 + a, 3 + b, 3 + c
+        trace_D = t[..., c] - t[..., a]  # D = U_c − U_a
+        trace_DD = G[..., c, c] - 2.0 * G[..., c, a] + G[..., a, a]
+        values.append(trace_D**2 - 2.0 * trace_DD - t[..., vc] ** 2 + 2.0 * G[..., vc, vc])
         values.append(
-            _trace(Ub) ** 2
-            - _trace(Vc) ** 2
-            - (_trace_of_product(Ub, Ub) - _trace_of_product(Vc, Vc) + _trace_of_product(D, D))
+            trace_D * t[..., va]
+            - 2.0 * (G[..., c, va] - G[..., a, va])
+            + t[..., vb] * t[..., vc]
+            - 2.0 * G[..., vb, vc]
         )
+        values.append((t[..., a] - t[..., b]) * t[..., va] - 2.0 * (G[..., a, va] - G[..., b, va]))
+    for a, b, c in CYCLIC:
+        va, vb, vc = 3 + a, 3 + b, 3 + c
+        trace_DD = G[..., c, c] - 2.0 * G[..., c, a] + G[..., a, a]
+        values.append(t[..., b] ** 2 - t[..., vc] ** 2 - (G[..., b, b] - G[..., vc, vc] + trace_DD))
         values.append(
-            _trace(Vb) * _trace(Ua - 2.0 * Ub - Uc)
-            - _trace(Va) * _trace(Vc)
-            + 2.0 * _trace_of_product(Vb, Ub)
+            t[..., vb] * (t[..., a] - 2.0 * t[..., b] - t[..., c])
+            - t[..., va] * t[..., vc]
+            + 2.0 * G[..., vb, b]
         )
     return np.stack(values, axis=-1)
 
