@@ -159,7 +159,10 @@ def search_lens(
     division = float(lambdas[best])
     if 0 < best < len(lambdas) - 1:
         division = _parabola_minimum(lambdas[best - 1 : best + 2], costs[best - 1 : best + 2])
-    cost = _epipolar_cost(pairs, centre, scale, division)
+    # The grid's own cost where the parabola did not move λ off it.
+    cost = (
+        costs[best] if division == lambdas[best] else _epipolar_cost(pairs, centre, scale, division)
+    )
     warped = [division_undistort(x, centre, scale, division) for x in tracks]
     focal = search_focal(warped, start, rng, threshold_px, workers=workers, image_size=image_size)
     unwarped = float(costs[np.flatnonzero(lambdas == 0.0)[0]])

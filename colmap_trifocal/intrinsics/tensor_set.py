@@ -165,13 +165,12 @@ class TensorEstimator:
         K0 = intrinsics_matrix(start)
         jobs: list[Callable[[], TripletFit | None]] = []
         for p in missing:
+            self.starts_used += self._starts(key, p, second_start)
             first = self._cache.get((key, p, False)) if second_start else None
             if first is not None:
                 jobs.append(first.with_second_start)
-                self.starts_used += first.deferred is not None
             else:
                 jobs.append(partial(self._fit, p, K0, second_start))
-                self.starts_used += 2 if second_start else 1
         fits = map_jobs(
             _call,
             jobs,
@@ -186,11 +185,16 @@ class TensorEstimator:
     def _second_start_cost(self, start: np.ndarray, positions: list[int]) -> int:
         """Refinement starts that second starts at ``positions`` from ``start`` take."""
         key = self._key(start)
-        cost = 0
-        for p in positions:
-            first = self._cache.get((key, p, False))
-            cost += 2 if first is None else int(first.deferred is not None)
-        return cost
+        return sum(self._starts(key, p, True) for p in positions)
+
+    def _starts(self, key: tuple, position: int, second_start: bool) -> int:
+        """Refinement starts one fit takes at the start of ``key``: a first start 1; a
+        second start 1 where it completes the first start's fit (0 where that deferred
+        nothing), 2 where it fits from scratch."""
+        if not second_start:
+            return 1
+        first = self._cache.get((key, position, False))
+        return 2 if first is None else int(first.deferred is not None)
 
     def _fit(self, position: int, K0: np.ndarray, second_start: bool) -> TripletFit | None:
         """One triplet's fit from K0; its own seed makes it independent of scheduling."""
