@@ -330,6 +330,8 @@ class _SharedCamera:
         refine_principal_point: bool,
         refine_distortion: bool = False,
         fix_scale: bool = False,
+        function_tolerance: float = _FUNCTION_TOLERANCE,
+        max_iterations: int = _MAX_ITERATIONS,
     ) -> pycolmap.CeresBundleAdjuster:
         """pycolmap's bundle adjuster of the triplets ``which`` (positions in
         ``self.triplets``): poses and points, the camera's parameters as asked.
@@ -353,9 +355,9 @@ class _SharedCamera:
             refine_focal,
             refine_principal_point,
             refine_distortion,
-            function_tolerance=_FUNCTION_TOLERANCE,
+            function_tolerance=function_tolerance,
             gradient_tolerance=_GRADIENT_TOLERANCE,
-            max_iterations=_MAX_ITERATIONS,
+            max_iterations=max_iterations,
             threads=1,
         )
         return pycolmap.create_default_ceres_bundle_adjuster(options, config, self.reconstruction)
@@ -369,9 +371,30 @@ class _SharedCamera:
     ) -> bool:
         """Bundle-adjust the triplets ``which`` in place (:meth:`adjuster`); False when
         Ceres finds no usable solution."""
+        summary = self.solve(which, refine_focal, refine_principal_point, refine_distortion)
+        return bool(summary.is_solution_usable())
+
+    def solve(
+        self,
+        which: list[int],
+        refine_focal: bool,
+        refine_principal_point: bool,
+        refine_distortion: bool = False,
+        function_tolerance: float = _FUNCTION_TOLERANCE,
+        max_iterations: int = _MAX_ITERATIONS,
+    ) -> pycolmap.BundleAdjustmentSummary:
+        """:meth:`adjust` with Ceres' relative ``function_tolerance`` and
+        ``max_iterations`` given; pycolmap's summary of the solve."""
         with keep_colmap_quiet():
-            adjuster = self.adjuster(which, refine_focal, refine_principal_point, refine_distortion)
-            return bool(adjuster.solve().is_solution_usable())
+            adjuster = self.adjuster(
+                which,
+                refine_focal,
+                refine_principal_point,
+                refine_distortion,
+                function_tolerance=function_tolerance,
+                max_iterations=max_iterations,
+            )
+            return adjuster.solve()
 
     def adjust_each(self, which: list[int]) -> bool:
         """Adjust the poses and points of each triplet of ``which`` at the camera as it
