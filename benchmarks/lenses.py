@@ -10,6 +10,9 @@ max(w, h), centred, distortion 0) of the model named, msac-opt, one seed per run
 * ``division-80``: an 8-view 80° ring through a lens that follows the division model
   (λ = −0.25 at the image corner, ``with_division_distortion``), which no COLMAP
   model holds exactly, as a RADIAL camera;
+* ``drone-0.28``: a drone's 65° VGA camera over ground of 5 % relief (``drone_survey``),
+  SIMPLE_RADIAL, k1 = −0.28: strong polynomial distortion where nearly every view pair
+  is a homography;
 * ``pinhole-0.05``: the handheld set at k1 = −0.05 through a PINHOLE camera (which
   stays pinhole: the std must cover the bias).
 
@@ -41,6 +44,7 @@ from colmap_trifocal.common.log import keep_colmap_quiet
 from colmap_trifocal.database.cameras import CameraInfo
 from colmap_trifocal.synthetic.database import CAMERA_ID, scene_contents
 from colmap_trifocal.synthetic.lenses import (
+    drone_survey,
     lens_scene,
     wide_lens,
     with_division_distortion,
@@ -58,6 +62,7 @@ CLASSES = {
     "handheld-0.3": (handheld_indoor, "SIMPLE_RADIAL", (-0.3, 0.0)),
     "wide-100": (wide_lens, "RADIAL", (-0.25, 0.05)),
     "division-80": (lambda seed: lens_scene(80.0, seed=seed), "RADIAL", ("division", -0.25)),
+    "drone-0.28": (drone_survey, "SIMPLE_RADIAL", (-0.28, 0.0)),
     "pinhole-0.05": (handheld_indoor, "PINHOLE", (-0.05, 0.0)),
 }
 

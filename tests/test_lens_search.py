@@ -11,8 +11,11 @@ from colmap_trifocal.database.cameras import CameraInfo
 from colmap_trifocal.intrinsics.camera_input import camera_input
 from colmap_trifocal.intrinsics.lens_search import (
     CLEAR_RATIO,
+    DIVISION,
+    POLYNOMIAL,
     division_undistort,
     polynomial_start,
+    radial_undistort,
     search_lens,
 )
 from colmap_trifocal.intrinsics.triplet_selection import select_camera_triplets
@@ -53,12 +56,32 @@ def test_the_warp_undoes_a_division_lens() -> None:
     np.testing.assert_allclose(undone, scene.observations, atol=1e-9)
 
 
+def test_the_polynomial_warp_undoes_colmaps_radial_lens() -> None:
+    """COLMAP's ``x_d = x_u (1 + k1 |x_u|²)`` in normalised coordinates is the warp's
+    ``κ = k1 s² / f²`` in units of s, whatever the focal length: the warp undoes a
+    strong barrel lens up to the pixel, out to the image's edge."""
+    scene = lens_scene(65.0, seed=0)
+    k1 = -0.28
+    distorted = with_radial_distortion(scene, k1)
+    centre, scale = scene.intrinsics[2:4], 0.5 * np.hypot(scene.width, scene.height)
+    moved = np.linalg.norm(distorted.observations - scene.observations, axis=-1)
+    assert moved.max() > 20.0
+    kappa = k1 * scale**2 / scene.intrinsics[0] ** 2
+    undone = radial_undistort(distorted.observations, centre, scale, POLYNOMIAL, kappa)
+    np.testing.assert_allclose(undone, scene.observations, atol=1e-8)
+    # The polynomial start of that warp is k1 itself.
+    found = _search(distorted)
+    found.family, found.parameter = POLYNOMIAL, kappa
+    (start,) = polynomial_start(found, scene.intrinsics, 1, 0.8 * found.scale)
+    assert abs(start / k1 - 1) < 1e-6
+
+
 def test_the_polynomial_start_is_colmaps_k1_for_a_mild_warp() -> None:
     """To first order the division model is ``x_d = x_u (1 + λ r_u²)``, so COLMAP's
     ``k1 = λ f² / s²``."""
     scene = lens_scene(60.0, seed=0)
     found = _search(with_division_distortion(scene, -0.02))
-    found.division = -0.02
+    found.family, found.parameter = DIVISION, -0.02
     focal = scene.intrinsics[0]
     (k1,) = polynomial_start(found, scene.intrinsics, 1, 0.5 * found.scale)
     assert abs(k1 / (-0.02 * focal**2 / found.scale**2) - 1.0) < 0.03
@@ -67,7 +90,7 @@ def test_the_polynomial_start_is_colmaps_k1_for_a_mild_warp() -> None:
 def test_strong_barrel_distortion_is_found_and_a_pinhole_lens_left_alone() -> None:
     scene = lens_scene(80.0, seed=2)
     barrel = _search(with_radial_distortion(scene, -0.2))
-    assert barrel.clear and -0.6 < barrel.division < -0.2, barrel.division
+    assert barrel.clear and -0.6 < barrel.parameter < -0.1, barrel.describe()
     assert abs(barrel.focal.focal / scene.intrinsics[0] - 1.0) < 0.05
     pinhole = _search(scene)
-    assert not pinhole.clear and pinhole.ratio < CLEAR_RATIO, (pinhole.division, pinhole.ratio)
+    assert not pinhole.clear and pinhole.ratio < CLEAR_RATIO, (pinhole.describe(), pinhole.ratio)

@@ -42,6 +42,7 @@ def assess(
     tracks: list[np.ndarray],
     lens: LensDistortion | None = None,
     workers: int | None = None,
+    finding: str | None = None,
 ) -> CameraCalibration:
     """The camera's result (``seconds`` 0: the caller sets them).
 
@@ -53,6 +54,8 @@ def assess(
         lens: the distortion the triplets show (:mod:`.lens_distortion`), None when
             it was not estimated.
         workers: threads for the diagnosis (None: one per core).
+        finding: a cause found before this stage (the lens search's bent tracks),
+            first in the diagnosis.
     """
     camera, free_parameters = data.camera, fallback.free_parameters
     focal_scale = np.array([start[0], start[1], start[0], start[1]])
@@ -104,7 +107,9 @@ def assess(
         source=source,
         focal_search=search_summary(search),
         diagnosis=_joined(
-            lens_note, None if all(observable.values()) else diagnose(tracks, estimate, workers)
+            finding,
+            lens_note,
+            None if all(observable.values()) else diagnose(tracks, estimate, workers),
         ),
         triplet_bundle=polished.summary,
         lens_distortion=None if lens is None else lens.summary(),

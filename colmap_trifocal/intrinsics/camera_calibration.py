@@ -32,7 +32,7 @@ from .assessment import assess
 from .camera_input import CameraInput, camera_input
 from .focal_search import FocalSearchResult, search_focal
 from .fundamental import calibrate_fundamental
-from .lens_route import lens_search_applies, through_lens_search
+from .lens_route import LensRoute, lens_search_applies, through_lens_search
 from .method_run import MethodRun
 from .options import CalibrationOptions
 from .results import CameraCalibration
@@ -129,13 +129,21 @@ def _calibrate_method(
     # The restart waits for the lens search's verdict: on a lens it would refine tensors
     # the warp is about to replace.
     first = run.attempt(first_start(data.prior, search), restart=False)
-    warped, spent = None, 0
+    route = LensRoute(None, 0, None)
     if not first.majority_agrees and lens_search_applies(run):
-        warped, spent = through_lens_search(run)
-    if warped is not None:
+        route = through_lens_search(run)
+        # One budget for the camera's tensor work, the warped tracks' included.
+        estimator.starts_used += route.spent
+    if route.warped is not None:
+        warped = route.warped
         data, tracks, search, finished = warped.data, warped.tracks, warped.search, warped.finished
     else:
-        finished = run.finish(run.best_attempt(run.restarted(first), search))
+        best = run.restarted(first)
+        if not route.bent:
+            best = run.best_attempt(best, search)
+        # Else the raw tracks are bent and no warp made the tensors agree: other
+        # focal lengths cannot either (the disagreement is the lens's, not the start's).
+        finished = run.finish(best)
     best = finished.attempt
     with clock("assessment"):
         result = assess(
@@ -150,9 +158,10 @@ def _calibrate_method(
             tracks.tracks,
             finished.lens,
             options.workers,
+            route.finding(),
         )
     result.seconds = clock.total
     result.stage_seconds = clock.as_dict()
-    result.tensor_starts = estimator.starts_used + spent
+    result.tensor_starts = estimator.starts_used
     logger.info("camera %d: %s", camera.camera_id, clock.summary())
     return result

@@ -2,7 +2,7 @@
 
 Where most tensors disagree at the first start on a camera whose stored model has
 radial distortion but holds none (COLMAP's default ``SIMPLE_RADIAL``), the lens search
-(:mod:`.lens_search`) looks for a division-model warp. When it finds one clearly
+(:mod:`.lens_search`) looks for a radial warp (division or polynomial). When it finds one clearly
 better than none, the keypoints and tracks are warped with it, the tensors estimated
 and solved again from the warp's focal length (one start per warp: the warp, then one
 grid step either side), and the lens stage adjusts the stored model's own distortion
@@ -24,7 +24,7 @@ from .camera_input import CameraInput
 from .focal_search import FocalSearchResult
 from .lens_distortion import LensStart, distortion_model
 from .lens_search import LensSearchResult, polynomial_start, search_lens
-from .method_run import Finished, MethodRun
+from .method_run import Finished, MethodRun, consensus
 from .start_candidates import first_start
 from .tensor_set import TensorEstimator
 from .triplet_selection import CameraTracks
@@ -59,9 +59,36 @@ def lens_search_applies(run: MethodRun) -> bool:
     )
 
 
-def through_lens_search(run: MethodRun) -> tuple[Warped | None, int]:
-    """The run on the lens search's warped tracks, and the refinement starts it spent;
-    None where the search finds no clear warp, the tensors agree on none of its warps
+@dataclass
+class LensRoute:
+    """What the lens-search route gave: the run on its warped tracks (None where not
+    used), the refinement starts it spent, and the search (None where it did not run)."""
+
+    warped: Warped | None
+    spent: int
+    search: LensSearchResult | None
+
+    @property
+    def bent(self) -> bool:
+        """The search found the raw tracks clearly bent (a warp costs them much less,
+        :attr:`.LensSearchResult.clear`)."""
+        return self.search is not None and self.search.clear
+
+    def finding(self) -> str | None:
+        """The diagnosis where the tracks are bent and no warp was used, else None."""
+        if self.search is None or not self.bent or self.warped is not None:
+            return None
+        return (
+            f"unmodelled radial distortion (a {self.search.describe()} warp cuts the raw "
+            f"tracks' epipolar error {self.search.ratio:.1f}×, but the tensors agree on "
+            "none of the warps: the lens is not a one-parameter lens, or the scene has "
+            "too little depth relief for what that leaves)"
+        )
+
+
+def through_lens_search(run: MethodRun) -> LensRoute:
+    """The run on the lens search's warped tracks; its ``warped`` None where the search
+    finds no clear warp, the tensors agree on none of its warps
     (:meth:`.LensSearchResult.candidates`), or the lens stage does not confirm the
     distortion."""
     data, tracks, options = run.data, run.tracks, run.options
@@ -79,18 +106,20 @@ def through_lens_search(run: MethodRun) -> tuple[Warped | None, int]:
             options.workers,
         )
     logger.info(
-        "camera %d: lens search: division %.2f, %.1f px (the unwarped tracks cost %.1fx; %s)",
+        "camera %d: lens search: %s, %.1f px (the unwarped tracks cost %.1fx; %s)",
         camera.camera_id,
-        found.division,
+        found.describe(),
         found.focal.focal,
         found.ratio,
         "used" if found.clear else "not clear: not used",
     )
     if not found.clear:
-        return None, 0
+        return LensRoute(None, 0, found)
     spent = 0
-    for division in found.candidates():
-        warp = replace(found, division=division)
+    for family, parameter in found.candidates():
+        if not run.estimator.can_afford(spent + len(tracks.triplets)):
+            return LensRoute(None, spent, found)
+        warp = replace(found, family=family, parameter=parameter)
         keypoints = {image: warp.undistort(k) for image, k in data.keypoints.items()}
         warped = CameraTracks(
             tracks.triplets, [warp.undistort(x) for x in tracks.tracks], tracks.sequence
@@ -105,17 +134,17 @@ def through_lens_search(run: MethodRun) -> tuple[Warped | None, int]:
         # unwarped run as it would have gone on.
         best = warped_run.attempt(first_start(data.prior, warp.focal))
         spent += warped_run.estimator.starts_used
-        if not warped_run.nothing_agrees(best):
+        if consensus(best.fallback):
             break
         logger.info(
-            "camera %d: %d of %d tensors agree on the tracks warped with division %.2f",
+            "camera %d: %d of %d tensors agree on the tracks warped with %s",
             camera.camera_id,
             best.agreeing,
             len(best.tensors.tensors),
-            division,
+            warp.describe(),
         )
     else:
-        return None, spent
+        return LensRoute(None, spent, found)
     raw = tracks.by_images()
     finished = warped_run.finish(
         best, lambda intrinsics: LensStart(raw, distortion_start(camera, warp, raw, intrinsics))
@@ -124,8 +153,8 @@ def through_lens_search(run: MethodRun) -> tuple[Warped | None, int]:
         logger.info(
             "camera %d: the lens adjustment did not confirm the warp: not used", camera.camera_id
         )
-        return None, spent
-    return Warped(warped_run.data, warped, warp.focal, finished), spent
+        return LensRoute(None, spent, found)
+    return LensRoute(Warped(warped_run.data, warped, warp.focal, finished), spent, found)
 
 
 def distortion_start(

@@ -1,4 +1,4 @@
-"""The lens search: a division-model warp and a focal length where tensors disagree.
+"""The lens search: a radial warp and a focal length where tensors disagree.
 
 Why. Strong barrel distortion (a 100° lens, an action or drone camera: a fifth to a
 third of the radius in the image corners) bends the tracks so far from any pinhole
@@ -6,20 +6,29 @@ camera that the projective tensors disagree with each other, and the lens stage
 (:mod:`.lens_distortion`), which starts from agreeing tensors, never runs: the run
 can only hold the start.
 
-How. Fitzgibbon's one-parameter division model (CVPR 2001),
-``x_u = c + (x_d − c) / (1 + λ r²)`` with ``r = |x_d − c| / s`` (``c``: the start's
-principal point, ``s``: its distance to the farthest image corner, half the diagonal
-for a centred one, so ``r ≤ 1`` in the image), is a warp of the pixels that needs no
-focal length and can be undone in closed form for every ``λ > −1`` (barrel
-distortion: ``λ < 0``). Fitzgibbon's observation is that only
-the right ``λ`` lets straight epipolar geometry explain the matches, whatever the
-focal length: for each ``λ`` of :data:`LAMBDAS` every view pair of the first triplets
-gets a robust fundamental matrix (OpenCV's USAC) on the warped tracks, and ``λ`` costs
-the truncated Sampson errors summed over the pairs (each error scaled back to the
-raw pixels by the warp's magnification there). A parabola through the grid's
-minimum and its neighbours gives ``λ``; the focal search
-(:func:`.focal_search.search_focal`) then runs on the tracks warped with it. The
-warp is taken when the unwarped tracks cost :data:`CLEAR_RATIO` times more.
+How. Two one-parameter warps of the pixels that need no focal length, both with
+``r = |x − c| / s`` (``c``: the start's principal point, ``s``: its distance to the
+farthest image corner, half the diagonal for a centred one, so ``r ≤ 1`` in the image):
+
+* ``division``: Fitzgibbon's model (CVPR 2001), ``x_u = c + (x_d − c) / (1 + λ r_d²)``,
+  undone in closed form for every ``λ > −1``; it holds wide lenses whose polynomial
+  needs several terms (a 100° lens);
+* ``polynomial``: the radial polynomial COLMAP's models hold,
+  ``x_d = c + (x_u − c)(1 + κ r_u²)``, so that COLMAP's ``k1 = κ f² / s²``; undone by
+  Newton's method, up to the radius where a barrel polynomial folds
+  (``r_u = 1 / √(−3κ)``). A one-parameter division warp leaves several pixels of a
+  strong polynomial lens in the outer image (k1 = −0.28 at 65°), which planar scenes'
+  tensors do not survive.
+
+Fitzgibbon's observation is that only the right warp lets straight epipolar geometry
+explain the matches, whatever the focal length: for each parameter of
+:data:`LAMBDAS` and :data:`KAPPAS` every view pair of the first triplets gets a
+robust fundamental matrix (OpenCV's USAC) on the warped tracks, and the warp costs the
+truncated Sampson errors summed over the pairs (each error scaled back to the raw
+pixels by the warp's magnification there). The family with the lower grid minimum is
+kept, a parabola through its minimum and neighbours gives the parameter, and the
+focal search (:func:`.focal_search.search_focal`) runs on the tracks warped with it.
+The warp is taken when the unwarped tracks cost :data:`CLEAR_RATIO` times more.
 
 The warp only lets the tensors and the solve see nearly pinhole tracks: the camera's
 own model (``SIMPLE_RADIAL`` k, ``RADIAL`` k1 k2, ``OPENCV`` k1 k2 p1 p2) is adjusted
@@ -43,13 +52,19 @@ from .focal_search import FocalSearchResult, search_focal
 #: corner's radius 1 / (1 − 0.8) = 5× shorter than its undistorted one; a 100° lens
 #: with k1 = −0.25, k2 = 0.05 is about −0.6 over its tracks).
 LAMBDAS = tuple(np.round(np.arange(-0.8, 0.21, 0.1), 2))
+#: Polynomial parameters searched (κ = k1 s² / f²), barrel only (a pincushion lens is
+#: as near a division one): none to a barrel that folds at 0.77 s (−0.25: k1 = −0.4 at
+#: a 65° lens, whose s ≈ 0.8 f).
+KAPPAS = tuple(np.round(np.arange(-0.25, 0.01, 0.05), 2))
+#: The two warp families (see the module).
+DIVISION, POLYNOMIAL = "division", "polynomial"
 #: The unwarped tracks must cost this many times more than the warped ones for the
 #: warp to be taken (as the focal search's own :data:`.focal_search.CLEAR_RATIO`).
 CLEAR_RATIO = 1.5
 #: Tracks per view pair (evenly spaced), RANSAC iterations, inlier threshold (pixels)
 #: of the fundamental matrices, and the Sampson distance (pixels) errors are
 #: truncated at.
-PAIR_TRACKS = 100
+PAIR_TRACKS = 200
 PAIR_ITERATIONS = 200
 PAIR_THRESHOLD_PX = 1.0
 TRUNCATION_PX = 2.0
@@ -62,44 +77,59 @@ class LensSearchResult:
     """Outcome of :func:`search_lens`.
 
     Attributes:
-        division: λ of the best warp (0: none).
+        family: the warp's family, ``DIVISION`` (λ) or ``POLYNOMIAL`` (κ).
+        parameter: the best warp's λ or κ (0: none).
         centre: (2,) the warp's centre, pixels.
         scale: s, the distance from ``centre`` to the farthest image corner, pixels.
-        focal: the focal search on the tracks warped with ``division``.
-        lambdas: (m,) every λ evaluated; ``costs`` (m,) the minimum of its focal search.
-        ratio: the cost at λ = 0 over the cost at ``division``.
+        focal: the focal search on the tracks warped with ``parameter``.
+        grid: (m,) every parameter of ``family`` evaluated; ``costs`` (m,) its
+            epipolar cost.
+        ratio: the cost of the unwarped tracks over the cost at ``parameter``.
+        alternative: the other family's best (family, parameter) where it also explains
+            the tracks clearly better than none, else None.
     """
 
-    division: float
+    family: str
+    parameter: float
     centre: np.ndarray
     scale: float
     focal: FocalSearchResult
-    lambdas: np.ndarray
+    grid: np.ndarray
     costs: np.ndarray
     ratio: float
+    alternative: tuple[str, float] | None = None
 
     @property
     def clear(self) -> bool:
         """Whether the warp explains the tracks clearly better than none (whether its
         focal length is decisive or not: the warped tensors decide that)."""
-        return self.division != 0.0 and self.ratio >= CLEAR_RATIO
+        return self.parameter != 0.0 and self.ratio >= CLEAR_RATIO
 
-    def candidates(self) -> list[float]:
-        """λ to warp with, in order: ``division``, then one grid step either side of
-        it, the side whose tracks cost less first (the cost is flat near its minimum,
-        and a polynomial lens is only approximately a division one)."""
-        step = float(self.lambdas[1] - self.lambdas[0])
+    def candidates(self) -> list[tuple[str, float]]:
+        """Warps (family, parameter) to try, in order: the best, the other family's
+        best (the families differ in shape: a lens with a second radial term is
+        nearer a division one, a strong one-term lens a polynomial, and the epipolar
+        cost of few view pairs can rank them wrongly), then one grid step either side
+        of the best, the side whose tracks cost less first (the cost is flat near
+        its minimum)."""
+        step = float(self.grid[1] - self.grid[0])
         near = [
-            round(self.division + side * step, 4)
+            round(self.parameter + side * step, 4)
             for side in (-1.0, 1.0)
-            if self.lambdas[0] <= self.division + side * step <= self.lambdas[-1]
+            if self.grid[0] <= self.parameter + side * step <= self.grid[-1]
         ]
-        near.sort(key=lambda d: float(np.interp(d, self.lambdas, self.costs)))
-        return [self.division, *near]
+        near.sort(key=lambda d: float(np.interp(d, self.grid, self.costs)))
+        other = [] if self.alternative is None else [self.alternative]
+        return [(self.family, self.parameter), *other, *((self.family, d) for d in near)]
 
     def undistort(self, points: np.ndarray) -> np.ndarray:
-        """Points (..., 2) in pixels, warped (:func:`division_undistort`)."""
-        return division_undistort(points, self.centre, self.scale, self.division)
+        """Points (..., 2) in pixels, warped (:func:`radial_undistort`)."""
+        return radial_undistort(points, self.centre, self.scale, self.family, self.parameter)
+
+    def describe(self) -> str:
+        """The warp in words, e.g. ``"division λ = -0.25"``."""
+        symbol = "λ" if self.family == DIVISION else "κ"
+        return f"{self.family} {symbol} = {self.parameter:.2f}"
 
 
 def division_undistort(
@@ -109,6 +139,52 @@ def division_undistort(
     undistorted ones under the division model (λ = ``division``, s = ``scale``)."""
     offset, denominator = _division(points, centre, scale, division)
     return centre + offset / denominator[..., None]
+
+
+def radial_undistort(
+    points: np.ndarray, centre: np.ndarray, scale: float, family: str, parameter: float
+) -> np.ndarray:
+    """Distorted pixels (..., 2) to undistorted ones under a warp of ``family``
+    (:func:`division_undistort`, or the polynomial's inverse)."""
+    offset, magnification = _warp(points, centre, scale, family, parameter)
+    return centre + offset * magnification[..., None]
+
+
+#: Newton steps of the polynomial's inverse (quadratic convergence from r_u = r_d).
+_NEWTON_STEPS = 12
+
+
+def _warp(
+    points: np.ndarray, centre: np.ndarray, scale: float, family: str, parameter: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The points' offsets from the centre (..., 2) and the warp's magnification
+    ``|x_u − c| / |x_d − c|`` at each (...,)."""
+    if family == DIVISION:
+        offset, denominator = _division(points, centre, scale, parameter)
+        return offset, 1.0 / denominator
+    offset = np.asarray(points, float) - centre
+    distorted = np.linalg.norm(offset, axis=-1) / scale
+    undistorted = _polynomial_inverse(distorted, parameter)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        magnification = np.where(distorted > 0, undistorted / distorted, 1.0)
+    return offset, magnification
+
+
+def _polynomial_inverse(distorted: np.ndarray, kappa: float) -> np.ndarray:
+    """r_u with ``r_u (1 + κ r_u²) = r_d`` (radii in units of s), by Newton's method
+    from r_u = r_d; a barrel polynomial (κ < 0) is inverted up to its fold
+    ``1 / √(−3κ)``, beyond which radii stay at the fold (no undistorted point maps
+    there: such tracks only cost the truncation)."""
+    if kappa == 0.0:
+        return distorted.copy()
+    fold = 1.0 / np.sqrt(-3.0 * kappa) if kappa < 0 else np.inf
+    target = np.minimum(distorted, fold * (1.0 + kappa * fold**2))
+    undistorted = np.minimum(target, fold)
+    for _ in range(_NEWTON_STEPS):
+        value = undistorted * (1.0 + kappa * undistorted**2) - target
+        slope = np.maximum(1.0 + 3.0 * kappa * undistorted**2, 1e-6)
+        undistorted = np.clip(undistorted - value / slope, 0.0, fold)
+    return undistorted
 
 
 def _division(
@@ -132,7 +208,7 @@ def search_lens(
     image_size: tuple[int, int],
     workers: int | None = None,
 ) -> LensSearchResult:
-    """The division warp and focal length that best explain the triplets' tracks.
+    """The radial warp and focal length that best explain the triplets' tracks.
 
     Args:
         tracks: per triplet, its tracks (3, n, 2), pixels as observed (distorted).
@@ -152,29 +228,67 @@ def search_lens(
         for chosen in [evenly_spaced(x.shape[1], PAIR_TRACKS)]
         for a, b in ((0, 1), (0, 2), (1, 2))
     ]
-    lambdas = np.array(LAMBDAS)
-    jobs = [(pairs, centre, scale, float(division)) for division in lambdas]
-    costs = np.array(map_jobs(_epipolar_job, jobs, workers))
-    best = int(np.argmin(costs))
-    division = float(lambdas[best])
-    if 0 < best < len(lambdas) - 1:
-        division = _parabola_minimum(lambdas[best - 1 : best + 2], costs[best - 1 : best + 2])
-    # The grid's own cost where the parabola did not move λ off it.
-    cost = (
-        costs[best] if division == lambdas[best] else _epipolar_cost(pairs, centre, scale, division)
-    )
-    warped = [division_undistort(x, centre, scale, division) for x in tracks]
+    # λ = 0 and κ = 0 are the same (no) warp: evaluated once, with the division grid.
+    grids = {DIVISION: np.array(LAMBDAS), POLYNOMIAL: np.array(KAPPAS)}
+    jobs = [
+        (pairs, centre, scale, family, float(value))
+        for family, grid in grids.items()
+        for value in grid
+        if family == DIVISION or value != 0.0
+    ]
+    evaluated = iter(map_jobs(_epipolar_job, jobs, workers))
+    unwarped = 0.0
+    costs = {}
+    for family, grid in grids.items():
+        costs[family] = np.array(
+            [
+                unwarped if family == POLYNOMIAL and value == 0.0 else next(evaluated)
+                for value in grid
+            ]
+        )
+        if family == DIVISION:
+            unwarped = float(costs[DIVISION][np.flatnonzero(grid == 0.0)[0]])
+    refined = {
+        family: _refined_minimum(pairs, centre, scale, family, grid, costs[family])
+        for family, grid in grids.items()
+    }
+    family, other = sorted(refined, key=lambda name: refined[name][1])
+    (parameter, cost), grid = refined[family], grids[family]
+    alternative = None
+    if refined[other][0] != 0.0 and unwarped >= CLEAR_RATIO * refined[other][1]:
+        alternative = (other, refined[other][0])
+    warped = [radial_undistort(x, centre, scale, family, parameter) for x in tracks]
     focal = search_focal(warped, start, rng, threshold_px, workers=workers, image_size=image_size)
-    unwarped = float(costs[np.flatnonzero(lambdas == 0.0)[0]])
     return LensSearchResult(
-        division=division,
+        family=family,
+        parameter=parameter,
         centre=centre,
         scale=scale,
         focal=focal,
-        lambdas=lambdas,
-        costs=costs,
+        grid=grid,
+        costs=costs[family],
         ratio=unwarped / max(cost, 1e-12),
+        alternative=alternative,
     )
+
+
+def _refined_minimum(
+    pairs: list[tuple[np.ndarray, np.ndarray]],
+    centre: np.ndarray,
+    scale: float,
+    family: str,
+    grid: np.ndarray,
+    costs: np.ndarray,
+) -> tuple[float, float]:
+    """A family's best parameter (the parabola through its grid minimum and neighbours)
+    and its epipolar cost (the grid's own where the parabola stays on the grid)."""
+    best = int(np.argmin(costs))
+    parameter = float(grid[best])
+    if 0 < best < len(grid) - 1:
+        parameter = _parabola_minimum(grid[best - 1 : best + 2], costs[best - 1 : best + 2])
+    if parameter == grid[best]:
+        return parameter, float(costs[best])
+    return parameter, _epipolar_cost(pairs, centre, scale, family, parameter)
 
 
 def _epipolar_job(job: tuple) -> float:
@@ -182,18 +296,23 @@ def _epipolar_job(job: tuple) -> float:
 
 
 def _epipolar_cost(
-    pairs: list[tuple[np.ndarray, np.ndarray]], centre: np.ndarray, scale: float, division: float
+    pairs: list[tuple[np.ndarray, np.ndarray]],
+    centre: np.ndarray,
+    scale: float,
+    family: str,
+    parameter: float,
 ) -> float:
     """Σ over the view pairs (tracks (n, 2), (n, 2) pixels) of ``min(d², TRUNCATION_PX²)``,
-    d the Sampson distance of the warped tracks from their robust fundamental matrix
-    (OpenCV USAC), in raw pixels; a pair without one costs the truncation per track."""
+    d the Sampson distance of the tracks warped by ``family`` with ``parameter`` from
+    their robust fundamental matrix (OpenCV USAC), in raw pixels; a pair without one
+    costs the truncation per track."""
     total = 0.0
     for x1, x2 in pairs:
-        (offset1, denominator1), (offset2, denominator2) = (
-            _division(x, centre, scale, division) for x in (x1, x2)
+        (offset1, magnification1), (offset2, magnification2) = (
+            _warp(x, centre, scale, family, parameter) for x in (x1, x2)
         )
-        u1 = centre + offset1 / denominator1[:, None]
-        u2 = centre + offset2 / denominator2[:, None]
+        u1 = centre + offset1 * magnification1[:, None]
+        u2 = centre + offset2 * magnification2[:, None]
         try:
             F, _ = cv2.findFundamentalMat(
                 np.ascontiguousarray(u1),
@@ -208,8 +327,8 @@ def _epipolar_cost(
         if F is None or F.shape != (3, 3):
             total += TRUNCATION_PX**2 * len(x1)
             continue
-        # The warp magnifies the image by 1 / (1 + λ r²) around each point.
-        magnification = 0.5 * (1.0 / denominator1 + 1.0 / denominator2)
+        # The warp magnifies the image around each point (division: 1 / (1 + λ r²)).
+        magnification = 0.5 * (magnification1 + magnification2)
         distance2 = sampson_squared(F, u1, u2) / magnification**2
         total += float(np.minimum(distance2, TRUNCATION_PX**2).sum())
     return total
@@ -252,7 +371,9 @@ def polynomial_start(
     ``max_radius`` pixels; ``num_parameters`` (1 or 2) of them."""
     focal = float(np.sqrt(intrinsics[0] * intrinsics[1]))
     distorted = np.linspace(max_radius / FIT_SAMPLES, max_radius, FIT_SAMPLES)
-    undistorted = distorted / (1.0 + search.division * (distorted / search.scale) ** 2)
+    offsets = np.stack([distorted, np.zeros_like(distorted)], axis=1)
+    _, magnification = _warp(offsets, np.zeros(2), search.scale, search.family, search.parameter)
+    undistorted = distorted * magnification
     rho = (undistorted / focal) ** 2
     design = np.stack([rho**power for power in range(1, num_parameters + 1)], axis=1)
     return np.linalg.lstsq(design, distorted / undistorted - 1.0, rcond=None)[0]

@@ -18,6 +18,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from .facade import facade_scene
 from .motions import scene_from_poses
 from .scenes import SyntheticScene, _as_generator, look_at_rotations, make_scene
 
@@ -129,6 +130,28 @@ def turntable(
     scene.visible = scene.visible & facing
     scene.observations[~scene.visible] = 0.0
     return scene
+
+
+#: The drone survey's camera: a 65° VGA lens, the principal point off centre, pixels.
+DRONE_INTRINSICS = np.array([500.0, 500.0, 330.0, 236.0])
+
+
+def drone_survey(
+    seed: int | np.random.Generator | None = 0, relief: float = 0.05, num_images: int = 10
+) -> SyntheticScene:
+    """A drone's VGA camera (65°, :data:`DRONE_INTRINSICS`) passing over ground with
+    little relief (``relief``: depth variation relative to the distance): the facade
+    walk of :func:`.facade.facade_scene` seen from 640 × 480 pixels, so that most view
+    pairs are close to a homography and every triplet's tensor is weakly conditioned."""
+    return facade_scene(
+        relief=relief,
+        num_images=num_images,
+        seed=seed,
+        num_points=1500,
+        intrinsics=DRONE_INTRINSICS,
+        width=LENS_WIDTH,
+        height=LENS_HEIGHT,
+    )
 
 
 def with_radial_distortion(scene: SyntheticScene, k1: float, k2: float = 0.0) -> SyntheticScene:
