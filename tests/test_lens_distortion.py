@@ -42,6 +42,17 @@ def _default_camera_contents(k1: float, seed: int):
     return contents, scene.intrinsics
 
 
+def _assert_within_half_a_percent_and_covered(result, truth: np.ndarray) -> None:
+    """f and the principal point within 0.5 % of f of the truth, every error within
+    2.5 of its std."""
+    assert abs(result.fx / truth[0] - 1) < 0.005
+    assert np.max(np.abs(result.intrinsics[2:] - truth[2:])) < 0.005 * truth[0]
+    error = np.abs(result.intrinsics - truth)
+    for index, name in enumerate(NAMES):
+        std = result.std[name]
+        assert std is not None and error[index] < 2.5 * std, (name, error[index], std)
+
+
 @pytest.mark.parametrize(("k1", "seed"), [(0.0, 0), (-0.05, 1), (-0.1, 0), (-0.1, 3), (0.05, 1)])
 def test_k_estimated_with_the_intrinsics_from_the_default_camera(k1: float, seed: int) -> None:
     """From COLMAP's default camera, k is estimated with K. At k1 = -0.1, seed 3, the
@@ -126,12 +137,7 @@ def test_a_100_degree_lens_no_tensor_agrees_on_is_found_by_the_lens_search() -> 
     assert result.lens_distortion is not None and result.lens_distortion["present"]
     k1, k2 = result.lens_distortion["params"]
     assert abs(k1 + 0.25) < 0.025 and abs(k2 - 0.05) < 0.01
-    assert abs(result.fx / truth[0] - 1) < 0.005
-    assert np.max(np.abs(result.intrinsics[2:] - truth[2:])) < 0.005 * truth[0]
-    error = np.abs(result.intrinsics - truth)
-    for index, name in enumerate(NAMES):
-        std = result.std[name]
-        assert std is not None and error[index] < 2.5 * std, (name, error[index], std)
+    _assert_within_half_a_percent_and_covered(result, truth)
 
 
 def test_a_drone_lens_over_flat_ground_is_found_by_the_polynomial_warp() -> None:
@@ -150,12 +156,7 @@ def test_a_drone_lens_over_flat_ground_is_found_by_the_polynomial_warp() -> None
     assert result.lens_distortion is not None and result.lens_distortion["present"]
     (k1,) = result.lens_distortion["params"]
     assert abs(k1 / -0.28 - 1) < 0.1
-    assert abs(result.fx / truth[0] - 1) < 0.005
-    assert np.max(np.abs(result.intrinsics[2:] - truth[2:])) < 0.005 * truth[0]
-    error = np.abs(result.intrinsics - truth)
-    for index, name in enumerate(NAMES):
-        std = result.std[name]
-        assert std is not None and error[index] < 2.5 * std, (name, error[index], std)
+    _assert_within_half_a_percent_and_covered(result, truth)
 
 
 @pytest.mark.slow
