@@ -54,7 +54,7 @@ def assess(
         lens: the distortion the triplets show (:mod:`.lens_distortion`), None when
             it was not estimated.
         workers: threads for the diagnosis (None: one per core).
-        finding: a cause found before this stage (the lens search's bent tracks),
+        finding: a cause the earlier stages found (the lens search's bent tracks),
             first in the diagnosis.
     """
     camera, free_parameters = data.camera, fallback.free_parameters

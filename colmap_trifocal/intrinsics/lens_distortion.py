@@ -241,8 +241,8 @@ def estimate_distortion(
             # The start's distortion is the warp's nearest polynomial, not the
             # camera's: every triplet adjusted with it first, so that λ compares fits.
             # A triplet with a point behind its cameras has no calibrated fit to start
-            # from; in a joint problem it keeps Ceres iterating for all (200 iterations
-            # against 12 without it); the rounds below adjust it on its own.
+            # from; in a joint problem it keeps Ceres iterating for all to its bound;
+            # the rounds below adjust it on its own.
             valid = [p for p in everything if np.isfinite(shared.cost([p]))]
             if len(valid) < MIN_TRIPLETS or not shared.adjust(
                 valid, refine_focal, refine_principal_point, True
@@ -340,8 +340,8 @@ def _cost_without_distortion(
 
     C₀ is only read through ``C₀ − C_k``: after ``C0_ITERATIONS`` iterations the rest
     runs to a relative precision ``C0_PRECISION`` of that difference, not of C₀. A
-    strong lens's pinhole fit crawls along a long valley (k1 = −0.3: the focal length
-    525 → 1272 px, 128 iterations) for changes far below what the test can see.
+    strong lens's pinhole fit crawls along a long valley (its focal length moves far
+    from the camera's) for changes far below what the test can see.
     """
     copy = pycolmap.Reconstruction(shared.reconstruction)
     camera = shared.camera

@@ -2,13 +2,16 @@
 
 Where most tensors disagree at the first start on a camera whose stored model has
 radial distortion but holds none (COLMAP's default ``SIMPLE_RADIAL``), the lens search
-(:mod:`.lens_search`) looks for a radial warp (division or polynomial). When it finds one clearly
-better than none, the keypoints and tracks are warped with it, the tensors estimated
-and solved again from the warp's focal length (one start per warp: the warp, then one
-grid step either side), and the lens stage adjusts the stored model's own distortion
-from the raw tracks, started from the warp's nearest polynomial. Where the warp is not
-clear, its tensors do not agree, or the adjustment does not confirm the distortion, the
-unwarped run goes on as it would have. Pixels in COLMAP's convention (the centre of the
+(:mod:`.lens_search`) looks for a radial warp (division or polynomial). When it finds
+one clearly better than none, the keypoints and tracks are warped with it, the tensors
+estimated and solved again from the warp's focal length (one start per warp, in the
+order of :meth:`.LensSearchResult.candidates`, until at least ``MIN_AGREEING`` tensors
+agree; the starts count in the camera's budget), and the lens stage adjusts the stored
+model's own distortion from the raw tracks, started from the warp's nearest
+polynomial. Where the warp is not clear, its tensors do not agree, or the adjustment
+does not confirm the distortion, the unwarped run goes on; where the raw tracks were
+clearly bent, without other focal starts (they cannot make bent tracks agree), and
+the diagnosis names the distortion. Pixels in COLMAP's convention (the centre of the
 top-left pixel at (0.5, 0.5)).
 """
 
