@@ -126,18 +126,26 @@ def _calibrate_method(
     the warped tracks first."""
     camera = data.camera
     run = MethodRun(data, tracks, estimator, method, options, clock)
-    # The restart waits for the lens search's verdict: on a lens it would refine tensors
-    # the warp is about to replace.
-    first = run.attempt(first_start(data.prior, search), restart=False)
+    candidate = first_start(data.prior, search)
     route = LensRoute(None, 0, None)
-    if not first.majority_agrees and lens_search_applies(run):
-        route = through_lens_search(run)
-        # One budget for the camera's tensor work, the warped tracks' included.
-        estimator.starts_used += route.spent
+    searched = False
+    if lens_search_applies(run) and run.first_tensors_disagree(candidate, options.search_triplets):
+        # Most of the first triplets disagree: the lens search, before the other tensors.
+        route, searched = through_lens_search(run), True
+    first = None
+    if route.warped is None:
+        # The restart waits for the lens search's verdict: on a lens it would refine
+        # tensors the warp is about to replace.
+        first = run.attempt(candidate, restart=False)
+        if not searched and not first.majority_agrees and lens_search_applies(run):
+            route = through_lens_search(run)
+    # One budget for the camera's tensor work, the warped tracks' included.
+    estimator.starts_used += route.spent
     if route.warped is not None:
         warped = route.warped
         data, tracks, search, finished = warped.data, warped.tracks, warped.search, warped.finished
     else:
+        assert first is not None
         best = run.restarted(first)
         if not route.bent:
             best = run.best_attempt(best, search)

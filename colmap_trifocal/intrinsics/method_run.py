@@ -101,6 +101,23 @@ class MethodRun:
         attempt = self.solved(candidate, tensors)
         return self.restarted(attempt) if restart else attempt
 
+    def first_tensors_disagree(self, candidate: StartCandidate, count: int) -> bool:
+        """Whether most of the first ``count`` triplets' tensors, solved alone, disagree
+        at ``candidate``: the cue for the lens search before the other tensors are
+        estimated (on bent tracks they would all disagree, slowly); the attempt that
+        follows reuses these."""
+        with self.clock("tensors"):
+            tensors = self.estimator.first(candidate.start, count)
+        if not tensors.tensors:
+            return False
+        with self.clock("solve"):
+            # The solve of every parameter the model has (no fallback: only how many
+            # tensors agree is read).
+            problem = self._problem(candidate, tensors)
+            span = problem.parametrization(self._base())
+            inliers = problem.solve(span, span=span).inlier_tensors
+        return 2 * int(inliers.sum()) < len(inliers)
+
     def restarted(self, attempt: Attempt) -> Attempt:
         """The attempt with its disagreeing tensors estimated again from its estimate and
         solved again, where the estimate landed far from the start (else as it is)."""
@@ -144,8 +161,14 @@ class MethodRun:
         """The 15 constraints of ``tensors`` solved with the method for the parameters of
         ``base`` (default: the camera model's); undetermined parameters tied (fy = fx) or
         held at the candidate's values (:func:`.solve_with_fallback`)."""
+        if base is None:
+            base = self._base()
+        return solve_with_fallback(self._problem(candidate, tensors), base)
+
+    def _problem(self, candidate: StartCandidate, tensors: TensorSet) -> FallbackProblem:
+        """The constraint problem of ``tensors`` from ``candidate`` (its held values)."""
         camera = self.data.camera
-        problem = FallbackProblem(
+        return FallbackProblem(
             tensors.tensors,
             self.method,
             tensors.start,
@@ -154,9 +177,10 @@ class MethodRun:
             self.options.tau,
             candidate.held_std,
         )
-        if base is None:
-            base = SINGLE_FOCAL if camera.single_focal else FULL
-        return solve_with_fallback(problem, base)
+
+    def _base(self) -> FreeParameters:
+        """The parameters the camera model has: one focal length or all four."""
+        return SINGLE_FOCAL if self.data.camera.single_focal else FULL
 
     def best_attempt(self, first: Attempt, search: FocalSearchResult | None) -> Attempt:
         """``first``, or the best of the other starts while most tensors disagree."""

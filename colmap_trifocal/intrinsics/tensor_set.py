@@ -121,6 +121,16 @@ class TensorEstimator:
             )
         return TensorSet(np.asarray(start, float).copy(), by_triplet, both)
 
+    def first(self, start: np.ndarray, count: int) -> TensorSet:
+        """The tensors of the first ``count`` triplets alone at ``start`` (cached, so
+        :meth:`at` from the same start reuses them)."""
+        positions = list(range(min(count, len(self.tracks.triplets))))
+        return TensorSet(
+            np.asarray(start, float).copy(),
+            self._estimate(start, positions, False),
+            np.zeros(len(positions), dtype=bool),
+        )
+
     def with_second_starts(self, tensors: TensorSet, disagree: np.ndarray) -> TensorSet | None:
         """``tensors`` with the disagreeing ones (bool per existing tensor) refined from
         both starts; None when that changes none of them (or the budget is spent)."""
