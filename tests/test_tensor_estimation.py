@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from colmap_trifocal.geometry import projective_ba
 from colmap_trifocal.geometry.projective_ba import refine_triplet
 from colmap_trifocal.geometry.tensor_estimation import (
     TensorEstimationOptions,
@@ -286,3 +287,31 @@ def test_second_start_completes_the_first_fit_exactly(scene_name: str, seed: int
     np.testing.assert_array_equal(completed.tensor.tensor, both.tensor.tensor)
     np.testing.assert_array_equal(completed.tensor.inliers, both.tensor.inliers)
     assert completed.with_second_start() is completed
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_refinement_stops_where_gauss_newton_predicts_nothing_left(
+    seed: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """On a near-planar triplet (1 % relief) the relative cost decrease stays above the
+    final tolerance after the optimum is reached: the refinement stops at the first
+    Gauss–Newton step whose predicted decrease is below 1 % of σ², earlier than the
+    relative rule, and the cost it ends at is that of full convergence to 1 % of σ²."""
+    scene = facade_scene(
+        relief=0.01, num_images=3, seed=seed, noise_px=1.0, num_points=600, outlier_ratio=0.0
+    )
+    K0 = intrinsics_matrix(scene.intrinsics * np.array([1.05, 1.05, 1.0, 1.0]))
+    assert scene.visible is not None
+    seen = scene.visible[list(VIEWS)].all(axis=0)
+    x = normalised_tracks(scene, K0)[:, seen]
+    P = scene.camera_matrices(np.linalg.solve(K0, scene.K))
+    P = P @ np.linalg.inv(np.vstack([P[0], [0.0, 0.0, 0.0, 1.0]]))
+    rng = np.random.default_rng(seed)
+    P2, P3 = (P[j] + 1e-3 * np.linalg.norm(P[j]) * rng.normal(size=(3, 4)) for j in (1, 2))
+    scale = K0[[0, 1], [0, 1]]
+    stopped = refine_triplet(x, P2, P3, scale, None, 300, 1e-9)
+    monkeypatch.setattr(projective_ba, "DECREMENT_STOP", 0.0)
+    full = refine_triplet(x, P2, P3, scale, None, 300, 1e-9)
+    assert stopped.iterations < full.iterations
+    gap = float(stopped.squared_errors.sum() - full.squared_errors.sum())
+    assert 0.0 <= gap < 0.01 * full.sigma**2

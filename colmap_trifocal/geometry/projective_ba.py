@@ -32,6 +32,13 @@ _POINT_COLUMNS = [0, 1, 3]  # dX/d(u, v, ρ) picks these columns of P
 #: ``optimize=True``'s contraction path for two operands, given rather than searched
 #: on every call (the same BLAS contraction, without the search's cost).
 _PAIR_PATH = ["einsum_path", (0, 1)]
+#: Damping at or below which a step counts as the Gauss–Newton step ...
+GAUSS_NEWTON_DAMPING = 1e-6
+#: ... and the refinement stops once such a step was predicted to lower the cost by
+#: less than this fraction of σ²: the optimum is within √0.01 = 0.1 σ (Mahalanobis,
+#: over cameras and points) of where it stops. On a near-planar triplet the relative
+#: cost decrease keeps above the tolerance for a hundred more steps there.
+DECREMENT_STOP = 0.01
 
 
 @dataclass
@@ -129,7 +136,8 @@ def refine_triplet(
         pixel_scale: (2,) pixels per normalised unit in x and y (fx0, fy0).
         points: initial (u, v, ρ) per track; by default :func:`initial_points`.
         max_iterations: LM iterations at most.
-        tolerance: stop when the relative cost decrease falls below this.
+        tolerance: stop when the relative cost decrease falls below this (or a
+            Gauss–Newton step predicted less than ``DECREMENT_STOP`` σ²).
     """
     scale = np.asarray(pixel_scale, dtype=float)
     P2 = P2 / np.linalg.norm(P2)
@@ -139,6 +147,8 @@ def refine_triplet(
     damping = 1e-3
     iteration = 0
     relative_decrease = np.inf
+    near_minimum = False
+    dof = max(6 * len(points) - (3 * len(points) + 24 - GAUGE_DIMENSION), 1)
     for iteration in range(1, max_iterations + 1):  # noqa: B007 - reported below
         U, V, W, g_c, g_p, _ = _linearise(x, P2, P3, points, scale)
         # W as (24, 3n): the point blocks side by side, so that the reduced camera
@@ -165,12 +175,17 @@ def refine_triplet(
                 scale3 = np.linalg.norm(P3_new)
                 P2, P3, points = P2_new / scale2, P3_new / scale3, points_new
                 relative_decrease = (cost - new_cost) / max(cost, 1e-300)
+                # A nearly undamped step is the Gauss–Newton step: gᵀδ is the decrease
+                # its quadratic model predicted from the point it left.
+                if damping <= GAUSS_NEWTON_DAMPING:
+                    predicted = float(g_c @ delta_c + np.sum(g_p * delta_p))
+                    near_minimum = predicted < DECREMENT_STOP * new_cost / dof
                 cost = new_cost
                 damping = max(damping / 3.0, 1e-9)
                 improved = True
                 break
             damping *= 4.0
-        if not improved or relative_decrease < tolerance:
+        if not improved or relative_decrease < tolerance or near_minimum:
             break
     U, V, W, _, _, r = _linearise(x, P2, P3, points, scale)
     # pinv: a point seen along its own epipolar direction has a singular 3x3 block.
