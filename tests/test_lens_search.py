@@ -94,3 +94,19 @@ def test_strong_barrel_distortion_is_found_and_a_pinhole_lens_left_alone() -> No
     assert abs(barrel.focal.focal / scene.intrinsics[0] - 1.0) < 0.05
     pinhole = _search(scene)
     assert not pinhole.clear and pinhole.ratio < CLEAR_RATIO, (pinhole.describe(), pinhole.ratio)
+
+
+def test_the_warps_tried_are_the_best_then_the_other_family_then_its_neighbours() -> None:
+    """The best warp first, the other family's best second, then one grid step either
+    side of the best, the cheaper side first; never no warp at all (the raw tracks the
+    tensors already disagreed on)."""
+    scene = lens_scene(65.0, seed=0)
+    found = _search(with_radial_distortion(scene, -0.28))
+    assert found.clear and found.alternative is not None
+    candidates = found.candidates()
+    assert candidates[0] == (found.family, found.parameter)
+    assert candidates[1] == found.alternative
+    assert all(family == found.family for family, _ in candidates[2:])
+    assert len(candidates) <= 4
+    found.parameter = float(found.grid[np.flatnonzero(found.grid == 0.0)[0] - 1])
+    assert all(parameter != 0.0 for _, parameter in found.candidates())

@@ -111,13 +111,15 @@ class LensSearchResult:
         nearer a division one, a strong one-term lens a polynomial, and the epipolar
         cost of few view pairs can rank them wrongly), then one grid step either side
         of the best, the side whose tracks cost less first (the cost is flat near
-        its minimum)."""
+        its minimum), leaving out no warp at all."""
         step = float(self.grid[1] - self.grid[0])
         near = [
             round(self.parameter + side * step, 4)
             for side in (-1.0, 1.0)
             if self.grid[0] <= self.parameter + side * step <= self.grid[-1]
         ]
+        # A zero warp is the raw tracks, on which most tensors already disagreed.
+        near = [d for d in near if d != 0.0]
         near.sort(key=lambda d: float(np.interp(d, self.grid, self.costs)))
         other = [] if self.alternative is None else [self.alternative]
         return [(self.family, self.parameter), *other, *((self.family, d) for d in near)]
