@@ -122,6 +122,20 @@ def test_the_estimated_k_is_written_to_the_database(tmp_path: Path) -> None:
     assert abs(f / truth[0] - 1) < 0.015 and abs(k + 0.05) < 0.005
 
 
+def test_the_command_line_prints_k_with_its_std(tmp_path: Path, run_main) -> None:
+    """``calibrate`` shows the estimated distortion and every std beside the estimate."""
+    contents, _ = _default_camera_contents(-0.05, 1)
+    database = write_database(contents, tmp_path / "database.db")
+    result = run_main("calibrate", database, "--no-prior", "--seed", "1", "--no-progress")
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    std = next(line for line in lines if line.split()[:1] == ["std"])
+    assert len(std.split("±")) == 5  # fx, fy, cx, cy
+    line = next(line for line in lines if "distortion (SIMPLE_RADIAL): k " in line)
+    k, k_std = (float(v) for v in line.split("k ")[1].split(" ± "))
+    assert abs(k + 0.05) < 0.005 and 0 < k_std < 0.01
+
+
 def test_a_100_degree_lens_no_tensor_agrees_on_is_found_by_the_lens_search() -> None:
     """A 100° lens at k1 = −0.25, k2 = +0.05 (RADIAL, 31 % displacement in the corners),
     from COLMAP's default camera 2.9x off: no tensor agrees on the raw tracks. The lens

@@ -27,6 +27,12 @@ def print_table(results: list[CameraCalibration], skipped: list[SkippedGroup], o
             f"{r.seconds:>6.1f}s {len(r.camera_ids):>4}",
             file=out,
         )
+        stds = [r.std[name] for name in ("fx", "fy", "cx", "cy")]
+        cells = "".join(f" {'' if v is None else f'± {v:.2f}':>10}" for v in stds)
+        print(f"{'':>6} {'':<14} {'std':<11}{cells}", file=out)
+        distortion = _distortion_line(r)
+        if distortion is not None:
+            print(f"{'':>6} {distortion}", file=out)
         if len(r.camera_ids) > 1:
             print(f"{'':>6} shared by camera ids {format_ids(r.camera_ids)}", file=out)
         warning = r.warning()
@@ -41,3 +47,22 @@ def print_comparisons(results: list[CameraCalibration], out: TextIO) -> None:
     for r in results:
         print(f"\ncamera {r.camera_id}: the estimate beside the model's own intrinsics", file=out)
         print(r.compare_with_model(), file=out)
+
+
+def _distortion_line(result: CameraCalibration) -> str | None:
+    """The estimated distortion with its std (COLMAP's parameter order), or None where
+    the stored distortion was kept."""
+    lens = result.lens_distortion
+    if result.distortion is None or lens is None:
+        return None
+    names = {
+        "SIMPLE_RADIAL": ("k",),
+        "RADIAL": ("k1", "k2"),
+        "OPENCV": ("k1", "k2", "p1", "p2"),
+    }.get(lens["camera_model"], tuple(f"d{i}" for i in range(len(result.distortion))))
+    stds = lens.get("std") or [None] * len(result.distortion)
+    parts = [
+        f"{name} {value:+.4f}" + ("" if std is None else f" ± {std:.4f}")
+        for name, value, std in zip(names, result.distortion, stds, strict=False)
+    ]
+    return f"distortion ({lens['camera_model']}): " + ", ".join(parts)
