@@ -26,7 +26,7 @@ from colmap_trifocal.synthetic.lenses import (
     with_division_distortion,
     with_radial_distortion,
 )
-from colmap_trifocal.synthetic.motions import handheld_indoor
+from colmap_trifocal.synthetic.motions import forward_driving, handheld_indoor
 
 NAMES = ("fx", "fy", "cx", "cy")
 
@@ -120,6 +120,26 @@ def test_the_estimated_k_is_written_to_the_database(tmp_path: Path) -> None:
     assert camera.model.name == "SIMPLE_RADIAL"
     f, cx, cy, k = camera.params
     assert abs(f / truth[0] - 1) < 0.015 and abs(k + 0.05) < 0.005
+
+
+def test_k_found_at_a_held_focal_length_carries_that_focal_lengths_doubt() -> None:
+    """A straight drive (no rotation: the focal length undetermined, held at COLMAP's
+    default, 34 % long) through k1 = −0.2: the tracks fix the distortion in pixels, so
+    k at the held focal length is k1 · (f_held / f)² ≈ −0.35; its std includes what the
+    held focal length's doubt does to it, and covers the truth."""
+    scene = with_radial_distortion(forward_driving(seed=0, yaw_deg=0.0), -0.2)
+    contents = scene_contents(scene)
+    width, height = scene.width, scene.height
+    default = [1.2 * max(width, height), width / 2, height / 2, 0.0]
+    contents.cameras[CAMERA_ID] = CameraInfo(CAMERA_ID, "SIMPLE_RADIAL", width, height, default)
+    (result,) = calibrate_contents(contents, CalibrationOptions(no_prior=True, seed=0))
+    assert result.source["fx"] in ("prior", "focal-search")
+    lens = result.lens_distortion
+    assert lens is not None and lens["present"]
+    (k,), (k_std,) = lens["params"], lens["std"]
+    assert abs(k + 0.2) < 2 * k_std
+    held = (result.std["fx"] or 0.0) / result.fx
+    assert k_std >= 2 * abs(k) * held * 0.99
 
 
 def test_the_command_line_prints_k_with_its_std(tmp_path: Path, run_main) -> None:

@@ -8,6 +8,8 @@ values' uncertainty counted) and the data actually moved it
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ..database.cameras import PINHOLE_MODELS
@@ -82,6 +84,8 @@ def assess(
             # point (pycolmap refines both coordinates or neither).
             reported_std[name] = float(candidate.held_std[index] * held_focal[index])
             estimate[index] = polished.intrinsics[index]
+    if lens is not None and source["fx"] in ("focal-search", "prior"):
+        lens = with_held_focal(lens, float(candidate.held_std[0]))
     return CameraCalibration(
         camera_id=camera.camera_id,
         model=camera.model,
@@ -227,6 +231,29 @@ def with_lens(
         "SIMPLE_RADIAL"
     )
     return intrinsics, np.hypot(relative_std, shift), None, note
+
+
+#: How each distortion parameter scales with the focal length for the same distortion
+#: in pixels (COLMAP's order: k1 with r², k2 with r⁴, OPENCV's p1, p2 with r).
+_FOCAL_POWERS = {
+    "SIMPLE_RADIAL": (2,),
+    "RADIAL": (2, 4),
+    "OPENCV": (2, 4, 1, 1),
+}
+
+
+def with_held_focal(lens: LensDistortion, focal_std: float) -> LensDistortion:
+    """``lens`` with each distortion std widened by what the held focal length's
+    relative std ``focal_std`` does to it. The adjustment held f, so its std of k is
+    conditional on f; the tracks fix the distortion in pixels, k1 = (distortion in
+    pixels) · f² / r², so k1 moves by 2 · focal_std relative where f does (k2 by 4, a
+    tangential term by 1)."""
+    powers = np.array(_FOCAL_POWERS.get(lens.camera_model, (2,) * len(lens.distortion)))
+    powers = powers[: len(lens.distortion)]
+    spread = powers * np.abs(lens.distortion) * focal_std
+    std = np.where(np.isfinite(lens.distortion_std), lens.distortion_std, 0.0)
+    widened = np.hypot(std, spread)
+    return replace(lens, distortion_std=np.where(np.isfinite(lens.distortion_std), widened, np.nan))
 
 
 def _joined(*notes: str | None) -> str | None:
