@@ -153,6 +153,8 @@ def _calibrate_method(
         # focal lengths cannot either (the disagreement is the lens's, not the start's).
         finished = run.finish(best)
     best = finished.attempt
+    # The lens is named as the cause only where the raw tracks' tensors disagreed too.
+    finding = None if first is None or first.majority_agrees else route.finding()
     with clock("assessment"):
         result = assess(
             data,
@@ -166,7 +168,7 @@ def _calibrate_method(
             tracks.tracks,
             finished.lens,
             options.workers,
-            route.finding(),
+            finding,
         )
     result.seconds = clock.total
     result.stage_seconds = clock.as_dict()

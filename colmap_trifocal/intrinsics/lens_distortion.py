@@ -361,12 +361,11 @@ def _cost_without_distortion(
         cost = shared.cost(agreeing)
         if first.termination_type != pycolmap.BundleAdjustmentTerminationType.NO_CONVERGENCE:
             return cost
-        tolerance = C0_PRECISION * max(cost - with_distortion, 0.0) / cost
+        tolerance = _FUNCTION_TOLERANCE
+        if np.isfinite(cost) and cost > 0:
+            tolerance = max(C0_PRECISION * max(cost - with_distortion, 0.0) / cost, tolerance)
         rest = shared.solve(
-            agreeing,
-            refine_focal,
-            refine_principal_point,
-            function_tolerance=max(tolerance, _FUNCTION_TOLERANCE),
+            agreeing, refine_focal, refine_principal_point, function_tolerance=tolerance
         )
         return shared.cost(agreeing) if rest.is_solution_usable() else float("nan")
     finally:
