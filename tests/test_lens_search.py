@@ -13,7 +13,6 @@ from colmap_trifocal.intrinsics.lens_search import (
     CLEAR_RATIO,
     DIVISION,
     POLYNOMIAL,
-    division_undistort,
     polynomial_start,
     radial_undistort,
     search_lens,
@@ -52,7 +51,7 @@ def test_the_warp_undoes_a_division_lens() -> None:
     centre, scale = scene.intrinsics[2:4], 0.5 * np.hypot(scene.width, scene.height)
     moved = np.linalg.norm(distorted.observations - scene.observations, axis=-1)
     assert moved.max() > 20.0  # a strong lens: tens of pixels in the corners
-    undone = division_undistort(distorted.observations, centre, scale, -0.3)
+    undone = radial_undistort(distorted.observations, centre, scale, DIVISION, -0.3)
     np.testing.assert_allclose(undone, scene.observations, atol=1e-9)
 
 

@@ -52,14 +52,12 @@ def print_comparisons(results: list[CameraCalibration], out: TextIO) -> None:
 def _distortion_line(result: CameraCalibration) -> str | None:
     """The estimated distortion with its std (COLMAP's parameter order), or None where
     the stored distortion was kept."""
+    from ..database.cameras import CameraInfo
+
     lens = result.lens_distortion
     if result.distortion is None or lens is None:
         return None
-    names = {
-        "SIMPLE_RADIAL": ("k",),
-        "RADIAL": ("k1", "k2"),
-        "OPENCV": ("k1", "k2", "p1", "p2"),
-    }.get(lens["camera_model"], tuple(f"d{i}" for i in range(len(result.distortion))))
+    names = CameraInfo.blank(lens["camera_model"]).distortion_names
     stds = lens.get("std") or [None] * len(result.distortion)
     parts = [
         f"{name} {value:+.4f}" + ("" if std is None else f" ± {std:.4f}")

@@ -38,6 +38,7 @@ class _Layout:
     principal_point: tuple[int, ...]
     extra: tuple[int, ...]
     num_params: int
+    names: tuple[str, ...]  # every parameter's name, as pycolmap's ``params_info``
 
 
 @cache
@@ -51,6 +52,7 @@ def _layout(model: str) -> _Layout:
         principal_point=tuple(cam.principal_point_idxs()),
         extra=tuple(cam.extra_params_idxs()),
         num_params=len(cam.params),
+        names=tuple(name.strip() for name in cam.params_info.split(",")),
     )
 
 
@@ -124,6 +126,12 @@ class CameraInfo:
     def distortion(self) -> np.ndarray:
         """The model's extra (distortion) parameters, shape (k,); empty for pinhole models."""
         return self.params[list(_layout(self.model).extra)].copy()
+
+    @property
+    def distortion_names(self) -> tuple[str, ...]:
+        """The distortion parameters' names in COLMAP's order, e.g. ``("k1", "k2")``."""
+        layout = _layout(self.model)
+        return tuple(layout.names[index] for index in layout.extra)
 
     @property
     def is_undistorted(self) -> bool:

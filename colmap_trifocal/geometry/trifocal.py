@@ -167,11 +167,12 @@ def quartic_constraints(T: np.ndarray) -> np.ndarray:
     M = np.concatenate([U, V], axis=-3).reshape(T.shape[:-3] + (6, 9))
     t = M[..., [0, 4, 8]].sum(axis=-1)  # traces, (..., 6)
     G = M @ np.swapaxes(M, -1, -2)  # tr(M_i M_j), (..., 6, 6)
+    # tr(D²) of D = U_c − U_a, which both groups of constraints use, per relabelling.
+    traces_DD = [G[..., c, c] - 2.0 * G[..., c, a] + G[..., a, a] for a, _, c in CYCLIC]
     values = []
-    for a, b, c in CYCLIC:
+    for (a, b, c), trace_DD in zip(CYCLIC, traces_DD, strict=True):
         va, vb, vc = 3 + a, 3 + b, 3 + c
-        trace_D = t[..., c] - t[..., a]  # D = U_c − U_a
-        trace_DD = G[..., c, c] - 2.0 * G[..., c, a] + G[..., a, a]
+        trace_D = t[..., c] - t[..., a]
         values.append(trace_D**2 - 2.0 * trace_DD - t[..., vc] ** 2 + 2.0 * G[..., vc, vc])
         values.append(
             trace_D * t[..., va]
@@ -180,9 +181,8 @@ def quartic_constraints(T: np.ndarray) -> np.ndarray:
             - 2.0 * G[..., vb, vc]
         )
         values.append((t[..., a] - t[..., b]) * t[..., va] - 2.0 * (G[..., a, va] - G[..., b, va]))
-    for a, b, c in CYCLIC:
+    for (a, b, c), trace_DD in zip(CYCLIC, traces_DD, strict=True):
         va, vb, vc = 3 + a, 3 + b, 3 + c
-        trace_DD = G[..., c, c] - 2.0 * G[..., c, a] + G[..., a, a]
         values.append(t[..., b] ** 2 - t[..., vc] ** 2 - (G[..., b, b] - G[..., vc, vc] + trace_DD))
         values.append(
             t[..., vb] * (t[..., a] - 2.0 * t[..., b] - t[..., c])

@@ -128,16 +128,15 @@ def _calibrate_method(
     run = MethodRun(data, tracks, estimator, method, options, clock)
     candidate = first_start(data.prior, search)
     route = LensRoute(None, 0, None)
-    searched = False
     if lens_search_applies(run) and run.first_tensors_disagree(candidate, options.search_triplets):
         # Most of the first triplets disagree: the lens search, before the other tensors.
-        route, searched = through_lens_search(run), True
+        route = through_lens_search(run)
     first = None
     if route.warped is None:
         # The restart waits for the lens search's verdict: on a lens it would refine
         # tensors the warp is about to replace.
         first = run.attempt(candidate, restart=False)
-        if not searched and not first.majority_agrees and lens_search_applies(run):
+        if route.search is None and not first.majority_agrees and lens_search_applies(run):
             route = through_lens_search(run)
     # One budget for the camera's tensor work, the warped tracks' included.
     estimator.starts_used += route.spent

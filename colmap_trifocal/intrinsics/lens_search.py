@@ -134,20 +134,12 @@ class LensSearchResult:
         return f"{self.family} {symbol} = {self.parameter:.2f}"
 
 
-def division_undistort(
-    points: np.ndarray, centre: np.ndarray, scale: float, division: float
-) -> np.ndarray:
-    """``c + (x − c) / (1 + λ r²)``, ``r = |x − c| / s``: distorted pixels (..., 2) to
-    undistorted ones under the division model (λ = ``division``, s = ``scale``)."""
-    offset, denominator = _division(points, centre, scale, division)
-    return centre + offset / denominator[..., None]
-
-
 def radial_undistort(
     points: np.ndarray, centre: np.ndarray, scale: float, family: str, parameter: float
 ) -> np.ndarray:
-    """Distorted pixels (..., 2) to undistorted ones under a warp of ``family``
-    (:func:`division_undistort`, or the polynomial's inverse)."""
+    """Distorted pixels (..., 2) to undistorted ones under a warp of ``family``: the
+    division model's ``c + (x − c) / (1 + λ r²)``, ``r = |x − c| / s``, or the
+    polynomial's inverse (s = ``scale``)."""
     offset, magnification = _warp(points, centre, scale, family, parameter)
     return centre + offset * magnification[..., None]
 
@@ -230,26 +222,18 @@ def search_lens(
         for chosen in [evenly_spaced(x.shape[1], PAIR_TRACKS)]
         for a, b in ((0, 1), (0, 2), (1, 2))
     ]
-    # λ = 0 and κ = 0 are the same (no) warp: evaluated once, with the division grid.
     grids = {DIVISION: np.array(LAMBDAS), POLYNOMIAL: np.array(KAPPAS)}
-    jobs = [
-        (pairs, centre, scale, family, float(value))
-        for family, grid in grids.items()
-        for value in grid
-        if family == DIVISION or value != 0.0
-    ]
-    evaluated = iter(map_jobs(_epipolar_job, jobs, workers))
-    unwarped = 0.0
-    costs = {}
-    for family, grid in grids.items():
-        costs[family] = np.array(
-            [
-                unwarped if family == POLYNOMIAL and value == 0.0 else next(evaluated)
-                for value in grid
-            ]
-        )
-        if family == DIVISION:
-            unwarped = float(costs[DIVISION][np.flatnonzero(grid == 0.0)[0]])
+    # λ = 0 and κ = 0 are the same (no) warp: evaluated once, with the division grid.
+    kappas = [float(value) for value in grids[POLYNOMIAL] if value != 0.0]
+    jobs = [(pairs, centre, scale, DIVISION, float(value)) for value in grids[DIVISION]]
+    jobs += [(pairs, centre, scale, POLYNOMIAL, value) for value in kappas]
+    evaluated = map_jobs(_epipolar_job, jobs, workers)
+    costs = {DIVISION: np.array(evaluated[: len(grids[DIVISION])])}
+    unwarped = float(costs[DIVISION][np.flatnonzero(grids[DIVISION] == 0.0)[0]])
+    by_kappa = dict(zip(kappas, evaluated[len(grids[DIVISION]) :], strict=True))
+    costs[POLYNOMIAL] = np.array(
+        [by_kappa.get(float(value), unwarped) for value in grids[POLYNOMIAL]]
+    )
     refined = {
         family: _refined_minimum(pairs, centre, scale, family, grid, costs[family])
         for family, grid in grids.items()

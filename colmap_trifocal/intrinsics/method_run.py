@@ -58,7 +58,7 @@ class Attempt:
     @property
     def majority_agrees(self) -> bool:
         """At least half the tensors agree: no other start is tried."""
-        return 2 * self.agreeing >= len(self.fallback.solution.inlier_tensors)
+        return majority(self.fallback.solution.inlier_tensors)
 
 
 @dataclass
@@ -116,7 +116,7 @@ class MethodRun:
             problem = self._problem(candidate, tensors)
             span = problem.parametrization(self._base())
             inliers = problem.solve(span, span=span).inlier_tensors
-        return 2 * int(inliers.sum()) < len(inliers)
+        return not majority(inliers)
 
     def restarted(self, attempt: Attempt) -> Attempt:
         """The attempt with its disagreeing tensors estimated again from its estimate and
@@ -273,6 +273,11 @@ class MethodRun:
                 None if lens_start is None else lens_start(polished.intrinsics),
             )
         return Finished(best, polished, lens)
+
+
+def majority(inliers: np.ndarray) -> bool:
+    """Whether at least half the tensors (bool per tensor) agree."""
+    return 2 * int(inliers.sum()) >= len(inliers)
 
 
 def consensus(fallback: FallbackSolution) -> bool:
