@@ -32,12 +32,13 @@ _POINT_COLUMNS = [0, 1, 3]  # dX/d(u, v, ρ) picks these columns of P
 #: ``optimize=True``'s contraction path for two operands, given rather than searched
 #: on every call (the same BLAS contraction, without the search's cost).
 _PAIR_PATH = ["einsum_path", (0, 1)]
-#: Damping at or below which a step counts as the Gauss–Newton step ...
-GAUSS_NEWTON_DAMPING = 1e-6
-#: ... and the refinement stops once such a step was predicted to lower the cost by
-#: less than this fraction of σ²: the optimum is within √0.01 = 0.1 σ (Mahalanobis,
-#: over cameras and points) of where it stops. On a near-planar triplet the relative
-#: cost decrease keeps above the tolerance for a hundred more steps there.
+#: The Levenberg–Marquardt damping λ of the first step (λ·I added to the normal
+#: equations, px² per normalised unit²: far below their curvature, a Gauss–Newton step).
+INITIAL_DAMPING = 1e-3
+#: The refinement stops once the Gauss–Newton step from the current point predicts a
+#: cost decrease below this fraction of σ²: the optimum is within √0.01 = 0.1 σ
+#: (Mahalanobis, over cameras and points) of where it stops. On a near-planar triplet
+#: the relative cost decrease keeps above the tolerance for many more steps there.
 DECREMENT_STOP = 0.01
 
 
@@ -130,68 +131,67 @@ def refine_triplet(
 ) -> ProjectiveBAResult:
     """Levenberg–Marquardt refinement of P2, P3 and the points of one triplet.
 
+    The damping is Levenberg's, λ·I in the normalised coordinates of the cameras and
+    points, updated by the gain ratio (Nielsen's rule: the actual over the predicted
+    cost decrease). Marquardt's scaling by the diagonal leaves the weakly determined
+    directions of a near-planar triplet almost undamped: their steps overshoot along
+    the curved valley, and the refinement crawls.
+
     Args:
         x: prior-normalised observations (3, n, 2) of n tracks in views 1, 2, 3.
         P2, P3: initial cameras (3, 4) in the same coordinates, ``P1 = [I|0]``.
         pixel_scale: (2,) pixels per normalised unit in x and y (fx0, fy0).
         points: initial (u, v, ρ) per track; by default :func:`initial_points`.
         max_iterations: LM iterations at most.
-        tolerance: stop when the relative cost decrease falls below this (or a
-            Gauss–Newton step predicted less than ``DECREMENT_STOP`` σ²).
+        tolerance: stop when the relative cost decrease falls below this (or the
+            Gauss–Newton step predicts less than ``DECREMENT_STOP`` σ²).
     """
     scale = np.asarray(pixel_scale, dtype=float)
     P2 = P2 / np.linalg.norm(P2)
     P3 = P3 / np.linalg.norm(P3)
     points = initial_points(x, P2, P3) if points is None else points.copy()
     cost = float(np.sum(_residuals(x, P2, P3, points, scale) ** 2))
-    damping = 1e-3
+    damping, growth = INITIAL_DAMPING, 2.0
     iteration = 0
-    relative_decrease = np.inf
-    near_minimum = False
-    dof = max(6 * len(points) - (3 * len(points) + 24 - GAUGE_DIMENSION), 1)
+    n = len(points)
+    dof = max(6 * n - (3 * n + 24 - GAUGE_DIMENSION), 1)
     for iteration in range(1, max_iterations + 1):  # noqa: B007 - reported below
-        U, V, W, g_c, g_p, _ = _linearise(x, P2, P3, points, scale)
-        # W as (24, 3n): the point blocks side by side, so that the reduced camera
-        # matrix and the right-hand side are single matrix products.
-        W_flat = np.ascontiguousarray(W.transpose(1, 0, 2)).reshape(24, -1)
-        W_stack = W_flat.reshape(24, -1, 3)
-        V_diagonal = np.einsum("nii->ni", V)[:, :, None] * np.eye(3)
-        improved = False
+        system = _NormalEquations(*_linearise(x, P2, P3, points, scale)[:5])
+        improved = near_minimum = False
+        relative_decrease = 0.0
         while damping < 1e12:
-            V_inv = inverse_3x3(V + damping * V_diagonal + 1e-12 * np.eye(3))
-            WV = np.einsum("anj,njk->ank", W_stack, V_inv, optimize=_PAIR_PATH).reshape(24, -1)
-            S = U + damping * np.diag(np.diag(U)) - WV @ W_flat.T
-            b = g_c - WV @ g_p.ravel()
-            if not (np.all(np.isfinite(S)) and np.all(np.isfinite(b))):
+            step = system.step(damping)
+            if step is None:
                 break
-            delta_c = np.linalg.lstsq(S, b, rcond=None)[0]
-            delta_p = (V_inv @ (g_p - (delta_c @ W_flat).reshape(-1, 3))[..., None])[..., 0]
+            delta_c, delta_p, predicted = step
             P2_new = P2 + delta_c[:12].reshape(3, 4)
             P3_new = P3 + delta_c[12:].reshape(3, 4)
             points_new = points + delta_p
             new_cost = float(np.sum(_residuals(x, P2_new, P3_new, points_new, scale) ** 2))
             if np.isfinite(new_cost) and new_cost < cost:
-                scale2 = np.linalg.norm(P2_new)
-                scale3 = np.linalg.norm(P3_new)
-                P2, P3, points = P2_new / scale2, P3_new / scale3, points_new
+                gain = (cost - new_cost) / max(predicted, 1e-300)
+                P2, P3 = P2_new / np.linalg.norm(P2_new), P3_new / np.linalg.norm(P3_new)
+                points = points_new
                 relative_decrease = (cost - new_cost) / max(cost, 1e-300)
-                # A nearly undamped step is the Gauss–Newton step: gᵀδ is the decrease
-                # its quadratic model predicted from the point it left.
-                if damping <= GAUSS_NEWTON_DAMPING:
-                    predicted = float(g_c @ delta_c + np.sum(g_p * delta_p))
-                    near_minimum = predicted < DECREMENT_STOP * new_cost / dof
+                threshold = DECREMENT_STOP * new_cost / dof
+                if predicted < threshold:
+                    # The damped step predicted little: so does the Gauss–Newton step
+                    # from the same point where the optimum is near (checked, not
+                    # assumed, since damping shortens the step along a flat valley).
+                    gauss_newton = system.step(0.0)
+                    near_minimum = gauss_newton is not None and gauss_newton[2] < threshold
                 cost = new_cost
-                damping = max(damping / 3.0, 1e-9)
+                damping *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+                growth = 2.0
                 improved = True
                 break
-            damping *= 4.0
+            damping *= growth
+            growth *= 2.0
         if not improved or relative_decrease < tolerance or near_minimum:
             break
     U, V, W, _, _, r = _linearise(x, P2, P3, points, scale)
     # pinv: a point seen along its own epipolar direction has a singular 3x3 block.
     S = U - _contract_points(W @ np.linalg.pinv(V), W)
-    n = len(points)
-    dof = max(6 * n - (3 * n + 24 - GAUGE_DIMENSION), 1)
     sigma2 = cost / dof
     return ProjectiveBAResult(
         P2=P2,
@@ -202,6 +202,44 @@ def refine_triplet(
         sigma=float(np.sqrt(sigma2)),
         iterations=iteration,
     )
+
+
+@dataclass
+class _NormalEquations:
+    """The normal equations of one linearisation (:func:`_linearise`'s blocks), solved
+    for a damping λ by the Schur complement on the 3x3 point blocks."""
+
+    U: np.ndarray  # (24, 24)
+    V: np.ndarray  # (n, 3, 3)
+    W: np.ndarray  # (n, 24, 3)
+    g_c: np.ndarray  # (24,)
+    g_p: np.ndarray  # (n, 3)
+
+    def __post_init__(self) -> None:
+        # W as (24, 3n): the point blocks side by side, so that the reduced camera
+        # matrix and the right-hand side are single matrix products.
+        self._W_flat = np.ascontiguousarray(self.W.transpose(1, 0, 2)).reshape(24, -1)
+
+    def step(self, damping: float) -> tuple[np.ndarray, np.ndarray, float] | None:
+        """(δ cameras (24,), δ points (n, 3), the cost decrease the step's quadratic
+        model predicts, gᵀδ + λ|δ|²) at damping λ; None where the system is not finite."""
+        W_flat = self._W_flat
+        V_inv = inverse_3x3(self.V + (damping + 1e-12) * np.eye(3))
+        WV = np.einsum(
+            "anj,njk->ank", W_flat.reshape(24, -1, 3), V_inv, optimize=_PAIR_PATH
+        ).reshape(24, -1)
+        S = self.U + damping * np.eye(24) - WV @ W_flat.T
+        b = self.g_c - WV @ self.g_p.ravel()
+        if not (np.all(np.isfinite(S)) and np.all(np.isfinite(b))):
+            return None
+        delta_c = np.linalg.lstsq(S, b, rcond=None)[0]
+        delta_p = (V_inv @ (self.g_p - (delta_c @ W_flat).reshape(-1, 3))[..., None])[..., 0]
+        predicted = float(
+            self.g_c @ delta_c
+            + np.sum(self.g_p * delta_p)
+            + damping * (delta_c @ delta_c + np.sum(delta_p * delta_p))
+        )
+        return delta_c, delta_p, predicted
 
 
 def _contract_points(A: np.ndarray, B: np.ndarray) -> np.ndarray:
