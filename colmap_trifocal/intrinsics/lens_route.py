@@ -134,8 +134,15 @@ def through_lens_search(run: MethodRun) -> LensRoute:
             estimator=TensorEstimator(warped, camera.camera_id, options, run.estimator.seeds),
         )
         # One start per warp: where its tensors do not agree, the next warp, then the
-        # unwarped run as it would have gone on.
-        best = warped_run.attempt(first_start(data.prior, warp.focal))
+        # unwarped run as it would have gone on. Where they agree, no second starts
+        # and no restart: the lens stage adjusts K from the raw tracks, so the warped
+        # tensors only choose its triplets and its start (what a residual warp error
+        # leaves disagreeing, a second start does not make agree).
+        best = warped_run.attempt(
+            first_start(data.prior, warp.focal), restart=False, complete=False
+        )
+        if not consensus(best.fallback):
+            best = warped_run.restarted(best)
         spent += warped_run.estimator.starts_used
         if consensus(best.fallback):
             break

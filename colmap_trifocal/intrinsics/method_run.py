@@ -92,13 +92,21 @@ class MethodRun:
     clock: StageClock
 
     def attempt(
-        self, candidate: StartCandidate, previous: TensorSet | None = None, restart: bool = True
+        self,
+        candidate: StartCandidate,
+        previous: TensorSet | None = None,
+        restart: bool = True,
+        complete: bool = True,
     ) -> Attempt:
         """The tensors at a start (those of ``previous`` that agree there carried over),
-        their solve, and (``restart``) the restart when the estimate lands far."""
+        their solve, completed (``complete``, :meth:`completed`), and (``restart``) the
+        restart when the estimate lands far."""
         with self.clock("tensors"):
             tensors = self.estimator.at(candidate.start, previous)
-        attempt = self.solved(candidate, tensors)
+        with self.clock("solve"):
+            attempt = Attempt(candidate, tensors, self.solve(candidate, tensors))
+        if complete:
+            attempt = self.completed(attempt)
         return self.restarted(attempt) if restart else attempt
 
     def first_tensors_disagree(self, candidate: StartCandidate, count: int) -> bool:
@@ -139,21 +147,27 @@ class MethodRun:
         return attempt
 
     def solved(self, candidate: StartCandidate, tensors: TensorSet) -> Attempt:
-        """The solve of ``tensors``; the disagreeing ones refined from both starts and
-        solved again, where enough tensors agree to say which K the second start is from
-        (with fewer than ``MIN_AGREEING`` the start is as doubtful as the tensors: other
-        starts follow)."""
+        """The solve of ``tensors``, completed (:meth:`completed`)."""
         with self.clock("solve"):
             fallback = self.solve(candidate, tensors)
-        if not consensus(fallback):
-            return Attempt(candidate, tensors, fallback)
+        return self.completed(Attempt(candidate, tensors, fallback))
+
+    def completed(self, attempt: Attempt) -> Attempt:
+        """The attempt with its disagreeing tensors refined from both starts and solved
+        again, where enough tensors agree to say which K the second start is from (with
+        fewer than ``MIN_AGREEING`` the start is as doubtful as the tensors: other starts
+        follow)."""
+        if not consensus(attempt.fallback):
+            return attempt
+        candidate, tensors = attempt.candidate, attempt.tensors
         with self.clock("tensors"):
-            second = self.estimator.with_second_starts(tensors, ~fallback.solution.inlier_tensors)
-        if second is not None:
-            tensors = second
-            with self.clock("solve"):
-                fallback = self.solve(candidate, tensors)
-        return Attempt(candidate, tensors, fallback)
+            second = self.estimator.with_second_starts(
+                tensors, ~attempt.fallback.solution.inlier_tensors
+            )
+        if second is None:
+            return attempt
+        with self.clock("solve"):
+            return Attempt(candidate, second, self.solve(candidate, second))
 
     def solve(
         self, candidate: StartCandidate, tensors: TensorSet, base: FreeParameters | None = None
