@@ -105,7 +105,7 @@ class MethodRun:
             tensors = self.estimator.at(candidate.start, previous)
         with self.clock("solve"):
             attempt = Attempt(candidate, tensors, self.solve(candidate, tensors))
-        if complete:
+        if complete and not (attempt.majority_agrees and self._restart_point(attempt) is not None):
             attempt = self.completed(attempt)
         return self.restarted(attempt) if restart else attempt
 
@@ -129,6 +129,21 @@ class MethodRun:
     def restarted(self, attempt: Attempt) -> Attempt:
         """The attempt with its disagreeing tensors estimated again from its estimate and
         solved again, where the estimate landed far from the start (else as it is)."""
+        point = self._restart_point(attempt)
+        if point is None:
+            return attempt
+        logger.info(
+            "camera %d: estimate far from the start; estimating the disagreeing tensors again",
+            self.data.camera.camera_id,
+        )
+        with self.clock("tensors"):
+            tensors = self.estimator.at(point, attempt.tensors)
+        return self.solved(attempt.candidate, tensors)
+
+    def _restart_point(self, attempt: Attempt) -> np.ndarray | None:
+        """Where the attempt's tensors are estimated again from (:func:`.restart_point`),
+        or None where there is no restart: the estimate stayed near the start, the
+        method or options do not restart, or the budget cannot pay for it."""
         tensors = attempt.tensors
         point = restart_point(attempt.fallback, tensors.start)
         if (
@@ -137,14 +152,8 @@ class MethodRun:
             and moved_far(point, tensors.start)
             and self.estimator.can_afford(len(tensors.by_triplet))
         ):
-            logger.info(
-                "camera %d: estimate far from the start; estimating the disagreeing tensors again",
-                self.data.camera.camera_id,
-            )
-            with self.clock("tensors"):
-                tensors = self.estimator.at(point, attempt.tensors)
-            attempt = self.solved(attempt.candidate, tensors)
-        return attempt
+            return point
+        return None
 
     def solved(self, candidate: StartCandidate, tensors: TensorSet) -> Attempt:
         """The solve of ``tensors``, completed (:meth:`completed`)."""
