@@ -100,7 +100,12 @@ class MethodRun:
     ) -> Attempt:
         """The tensors at a start (those of ``previous`` that agree there carried over),
         their solve, completed (``complete``, :meth:`completed`), and (``restart``) the
-        restart when the estimate lands far."""
+        restart when the estimate lands far.
+
+        Where the estimate lands far and most tensors already agree, the second starts
+        wait for the restart: at a start about to be left they would refine the
+        disagreeing tensors from a K the restart replaces.
+        """
         with self.clock("tensors"):
             tensors = self.estimator.at(candidate.start, previous)
         with self.clock("solve"):
