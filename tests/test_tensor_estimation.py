@@ -297,18 +297,7 @@ def test_the_refinement_stops_where_gauss_newton_predicts_nothing_left(
     final tolerance after the optimum is reached: the refinement stops at the first
     Gauss–Newton step whose predicted decrease is below 1 % of σ², earlier than the
     relative rule, and the cost it ends at is that of full convergence to 1 % of σ²."""
-    scene = facade_scene(
-        relief=0.01, num_images=3, seed=seed, noise_px=1.0, num_points=600, outlier_ratio=0.0
-    )
-    K0 = intrinsics_matrix(scene.intrinsics * np.array([1.05, 1.05, 1.0, 1.0]))
-    assert scene.visible is not None
-    seen = scene.visible[list(VIEWS)].all(axis=0)
-    x = normalised_tracks(scene, K0)[:, seen]
-    P = scene.camera_matrices(np.linalg.solve(K0, scene.K))
-    P = P @ np.linalg.inv(np.vstack([P[0], [0.0, 0.0, 0.0, 1.0]]))
-    rng = np.random.default_rng(seed)
-    P2, P3 = (P[j] + 1e-3 * np.linalg.norm(P[j]) * rng.normal(size=(3, 4)) for j in (1, 2))
-    scale = K0[[0, 1], [0, 1]]
+    x, P2, P3, scale = _near_planar_triplet(seed, 1e-3)
     stopped = refine_triplet(x, P2, P3, scale, None, 300, 1e-9)
     monkeypatch.setattr(projective_ba, "DECREMENT_STOP", 0.0)
     full = refine_triplet(x, P2, P3, scale, None, 300, 1e-9)
@@ -322,6 +311,20 @@ def test_a_near_planar_triplet_converges_in_a_few_steps(seed: int) -> None:
     """Levenberg's damping on a near-planar triplet (1 % relief), from cameras 3 % off:
     the refinement reaches the fully converged cost (to 1 % of σ²) within 8 steps
     (Marquardt's diagonal scaling took 10-13 on the same starts)."""
+    x, P2, P3, scale = _near_planar_triplet(seed, 3e-2)
+    result = refine_triplet(x, P2, P3, scale, None, 300, 1e-9)
+    assert result.iterations <= 8
+    converged = refine_triplet(x, result.P2, result.P3, scale, result.points, 300, 0.0)
+    gap = float(result.squared_errors.sum() - converged.squared_errors.sum())
+    assert 0.0 <= gap < 0.01 * converged.sigma**2
+
+
+def _near_planar_triplet(
+    seed: int, perturbation: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(tracks normalised by a K0 5 % long, P2, P3, pixel scale) of a facade triplet with
+    1 % relief, without outliers; the true cameras perturbed by ``perturbation`` of
+    their norm."""
     scene = facade_scene(
         relief=0.01, num_images=3, seed=seed, noise_px=1.0, num_points=600, outlier_ratio=0.0
     )
@@ -332,10 +335,5 @@ def test_a_near_planar_triplet_converges_in_a_few_steps(seed: int) -> None:
     P = scene.camera_matrices(np.linalg.solve(K0, scene.K))
     P = P @ np.linalg.inv(np.vstack([P[0], [0.0, 0.0, 0.0, 1.0]]))
     rng = np.random.default_rng(seed)
-    P2, P3 = (P[j] + 3e-2 * np.linalg.norm(P[j]) * rng.normal(size=(3, 4)) for j in (1, 2))
-    scale = K0[[0, 1], [0, 1]]
-    result = refine_triplet(x, P2, P3, scale, None, 300, 1e-9)
-    assert result.iterations <= 8
-    converged = refine_triplet(x, result.P2, result.P3, scale, result.points, 300, 0.0)
-    gap = float(result.squared_errors.sum() - converged.squared_errors.sum())
-    assert 0.0 <= gap < 0.01 * converged.sigma**2
+    P2, P3 = (P[j] + perturbation * np.linalg.norm(P[j]) * rng.normal(size=(3, 4)) for j in (1, 2))
+    return x, P2, P3, K0[[0, 1], [0, 1]]
