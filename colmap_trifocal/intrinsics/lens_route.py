@@ -136,8 +136,7 @@ def through_lens_search(run: MethodRun) -> LensRoute:
         # One start per warp: where its tensors do not agree, the next warp, then the
         # unwarped run as it would have gone on. Where they agree, no second starts
         # and no restart: the lens stage adjusts K from the raw tracks, so the warped
-        # tensors only choose its triplets and its start (what a residual warp error
-        # leaves disagreeing, a second start does not make agree).
+        # tensors only choose its triplets and its start.
         best = warped_run.attempt(
             first_start(data.prior, warp.focal), restart=False, complete=False
         )
