@@ -175,6 +175,20 @@ def good_database(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+def database_rows(data: Path | bytes) -> dict[str, list[tuple]]:
+    """Every table's rows (sorted) of a database file or its bytes: what a backup holds
+    (SQLite's backup API copies the pages; the header's change counters differ)."""
+    raw = bytearray(data if isinstance(data, bytes) else data.read_bytes())
+    raw[18:20] = b"\x01\x01"  # read a WAL-mode file as a plain one, in memory
+    con = sqlite3.connect(":memory:")
+    try:
+        con.deserialize(bytes(raw))
+        tables = [r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")]
+        return {t: sorted(con.execute(f'SELECT * FROM "{t}"').fetchall()) for t in tables}
+    finally:
+        con.close()
+
+
 @dataclass
 class Case:
     """One bad input: how to build it, what to run, what must come out."""
@@ -475,17 +489,59 @@ def _images(folder: Path, names: tuple[str, ...] = ("a.png", "b.png", "c.png")) 
     return folder
 
 
+def _images_and_link_to_them(folder: Path, _good: Path) -> Path:
+    """An image folder ``photos`` and a symlink ``link`` to it."""
+    images = _images(folder / "photos")
+    (folder / "link").symlink_to(images)
+    return images
+
+
+def _colmap_project(folder: Path, good: Path) -> Path:
+    """A COLMAP project: ``project/images`` and the user's own ``project/database.db``."""
+    _images(folder / "project" / "images")
+    shutil.copyfile(good, folder / "project" / "database.db")
+    return folder / "project"
+
+
+def _two_databases(folder: Path, good: Path) -> Path:
+    """``a/database.db`` and ``b/database.db``, copies of the good database."""
+    for name in ("a", "b"):
+        (folder / name).mkdir()
+        shutil.copyfile(good, folder / name / "database.db")
+    return folder / "a" / "database.db"
+
+
+def _database_and_backup(folder: Path, good: Path) -> Path:
+    """The good database and an earlier write's backup ``database.db.bak1``."""
+    shutil.copyfile(good, folder / "database.db.bak1")
+    return _copy(folder, good)
+
+
+def _earlier_demo(folder: Path, good: Path) -> Path:
+    """A folder where an earlier ``demo --keep`` left ``demo.db`` (here: another database)."""
+    shutil.copyfile(good, folder / "demo.db")
+    return folder / "demo.db"
+
+
+def _earlier_demo_workspace(folder: Path, good: Path) -> Path:
+    """A folder where an earlier ``demo --keep`` left its workspace ``demo/``."""
+    (folder / "demo").mkdir()
+    shutil.copyfile(good, folder / "demo" / "database.db")
+    return folder / "demo" / "database.db"
+
+
 def _images_in_sparse(folder: Path, _good: Path) -> Path:
     """An earlier run's workspace (the folder) whose ``sparse/`` also holds the images."""
     return _images(folder / "sparse")
 
 
 def _images_linked_into_sparse(folder: Path, _good: Path) -> Path:
-    """An image folder whose images are symlinks to files in the workspace's ``sparse/``."""
-    _images(folder / "sparse")
+    """An image folder whose images are symlinks to files in the ``sparse/`` of an earlier
+    run's workspace ``ws``."""
+    _images(folder / "ws" / "sparse")
     (folder / "photos").mkdir()
     for name in ("a.png", "b.png", "c.png"):
-        (folder / "photos" / name).symlink_to(folder / "sparse" / name)
+        (folder / "photos" / name).symlink_to(folder / "ws" / "sparse" / name)
     return folder / "photos"
 
 
@@ -753,14 +809,15 @@ CASES: dict[str, Case] = {
     "run --database is WORKSPACE/database.db, --overwrite": Case(
         _copy,
         "is the --database input",
-        argv=lambda f, p, w: ("run", f, f, "--database", p, "--overwrite"),
+        # IMAGES (only for colours with --database) is not the workspace here.
+        argv=lambda f, p, w: ("run", f / "no-images", f, "--database", p, "--overwrite"),
     ),
     "run --model inside WORKSPACE/sparse, --overwrite": Case(
         _database_in_workspace,
         "inside the workspace output",
         argv=lambda f, p, w: (
             "run",
-            f,
+            f / "no-images",
             f,
             "--database",
             p,
@@ -910,18 +967,18 @@ CASES: dict[str, Case] = {
     ),
     "run IMAGES is WORKSPACE/sparse through ..": Case(
         _images_in_sparse,
-        "is inside the workspace output",
+        "holds the image folder (IMAGES",
         argv=lambda f, p, w: ("run", p / ".." / "sparse", f, "--overwrite"),
     ),
     "run IMAGES is a symlink to WORKSPACE/sparse": Case(
         _link_to_images_in_sparse,
-        "is inside the workspace output",
+        "holds the image folder (IMAGES",
         argv=lambda f, p, w: ("run", p, f, "--overwrite"),
     ),
     "run images are symlinks into WORKSPACE/sparse": Case(
         _images_linked_into_sparse,
         "is inside the workspace output",
-        argv=lambda f, p, w: ("run", p, f, "--overwrite"),
+        argv=lambda f, p, w: ("run", p, f / "ws", "--overwrite"),
     ),
     "run --png is an input image": Case(
         lambda f, g: _images(f / "photos"),
@@ -932,6 +989,54 @@ CASES: dict[str, Case] = {
         _images_and_hard_link,
         "is a file of IMAGES (the same file as",
         argv=lambda f, p, w: ("run", p, w, "--png", f / "out.png"),
+    ),
+    # ----- issue 37, data loss: no output replaces an input, its backup, or a user's files
+    "run WORKSPACE is IMAGES, --overwrite": Case(
+        lambda f, g: _images(f / "photos"),
+        "is the image folder (IMAGES",
+        argv=lambda f, p, w: ("run", p, p, "--overwrite"),
+    ),
+    "run WORKSPACE is a symlink to IMAGES, --overwrite": Case(
+        _images_and_link_to_them,
+        "is the image folder (IMAGES",
+        argv=lambda f, p, w: ("run", p, f / "link", "--overwrite"),
+    ),
+    "run WORKSPACE holds IMAGES (a COLMAP project), --overwrite": Case(
+        _colmap_project,
+        "holds the image folder (IMAGES",
+        argv=lambda f, p, w: ("run", p / "images", p, "--overwrite"),
+    ),
+    "run WORKSPACE inside IMAGES": Case(
+        lambda f, g: _images(f / "photos"),
+        "is inside the image folder (IMAGES",
+        argv=lambda f, p, w: ("run", p, p / "workspace"),
+    ),
+    "calibrate --json is the backup --write makes (two databases)": Case(
+        _two_databases,
+        "is a backup name of the database",
+        argv=lambda f, p, w: (
+            "calibrate",
+            f / "a" / "database.db",
+            f / "b" / "database.db",
+            "--write",
+            "--json",
+            f / "a" / "database.db.bak",
+        ),
+    ),
+    "calibrate --json is an earlier backup": Case(
+        _database_and_backup,
+        "is a backup name of the database",
+        argv=lambda f, p, w: ("calibrate", p, "--json", f / "database.db.bak1"),
+    ),
+    "demo --keep holds a demo.db": Case(
+        _earlier_demo,
+        "demo.db already exists: refusing to replace it",
+        argv=lambda f, p, w: ("demo", "--keep", f),
+    ),
+    "demo --keep holds a demo workspace": Case(
+        _earlier_demo_workspace,
+        "already exists: refusing to replace it",
+        argv=lambda f, p, w: ("demo", "--keep", f),
     ),
     "calibrate --json is a file of --model": Case(
         _model_and_database,
@@ -954,9 +1059,9 @@ CASES: dict[str, Case] = {
         argv=_run("--png", "{folder}/database.db-wal"),
     ),
     "run --png is WORKSPACE/report.json": Case(
-        lambda f, g: _images(f / "photos"),
+        lambda f, g: (f / "ws").mkdir() or _images(f / "photos"),
         "is also the workspace output",
-        argv=lambda f, p, w: ("run", p, f, "--png", f / "report.json"),
+        argv=lambda f, p, w: ("run", p, f / "ws", "--png", f / "ws" / "report.json"),
     ),
     "calibrate --json inside --output": Case(
         _model_database_and_empty_output,
@@ -1432,7 +1537,7 @@ def test_interrupt_during_commit_is_held_until_written(
     assert len(lines) == 1 and lines[0].startswith("error: interrupted (after the new intrinsics")
     assert "backup: " in lines[0]
     backup = database_copy.with_name("database.db.bak")
-    assert backup.read_bytes() == original_bytes
+    assert database_rows(backup) == database_rows(original_bytes)
     np.testing.assert_allclose(camera_params(database_copy), PARAMS, rtol=1e-5)
     assert listing(database_copy.parent) == ["database.db", "database.db.bak"]
 
@@ -1474,7 +1579,7 @@ def test_backup_is_copied_under_a_temporary_name(
     assert status == 0
     assert seen and not any("database.db.bak" in names for names in seen), seen
     assert listing(database_copy.parent) == ["database.db", "database.db.bak"]
-    assert database_copy.with_name("database.db.bak").read_bytes() == original
+    assert database_rows(database_copy.with_name("database.db.bak")) == database_rows(original)
 
 
 def test_a_second_write_keeps_the_first_backup(
@@ -1486,8 +1591,8 @@ def test_a_second_write_keeps_the_first_backup(
     first = database_copy.read_bytes()
     assert run_main("calibrate", database_copy, *QUICK).returncode == 0
     assert listing(database_copy.parent) == ["database.db", "database.db.bak", "database.db.bak1"]
-    assert database_copy.with_name("database.db.bak").read_bytes() == original
-    assert database_copy.with_name("database.db.bak1").read_bytes() == first
+    assert database_rows(database_copy.with_name("database.db.bak")) == database_rows(original)
+    assert database_rows(database_copy.with_name("database.db.bak1")) == database_rows(first)
 
 
 def test_no_space_for_the_backup(
@@ -1555,7 +1660,7 @@ def test_a_backup_killed_while_copying_is_removed_by_the_next_write(
     status, lines = _main(run_main, "calibrate", database_copy, *QUICK)
     assert (status, lines) == (0, [])
     assert listing(database_copy.parent) == ["database.db", "database.db.bak"]
-    assert database_copy.with_name("database.db.bak").read_bytes() == original
+    assert database_rows(database_copy.with_name("database.db.bak")) == database_rows(original)
 
 
 def test_the_copy_of_a_running_write_is_left_alone(
@@ -1593,7 +1698,7 @@ def _write_state(path: Path, original: bytes, new_params: np.ndarray) -> str:
         assert names == ["database.db"], names
         return "untouched"
     assert names == ["database.db", "database.db.bak"], names
-    assert path.with_name("database.db.bak").read_bytes() == original
+    assert database_rows(path.with_name("database.db.bak")) == database_rows(original)
     np.testing.assert_array_equal(camera_params(path), new_params)
     return "written"
 

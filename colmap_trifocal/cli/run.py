@@ -80,6 +80,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Check, run the pipeline, print the report (and render the PNG); exit status 0."""
     from ..reconstruction.workflow import RunOptions, run_inputs, run_pipeline, workspace_outputs
+    from ..reconstruction.workspace import refuse_workspace_over_images
 
     progress = sys.stderr.isatty()
     options = RunOptions(
@@ -98,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
     )
     # With --database, IMAGES is optional (only used to colour the points).
     images = args.images if args.database is None or args.images.is_dir() else None
+    refuse_workspace_over_images(images, args.workspace)
     if args.workspace.is_dir() or not args.workspace.exists():  # a file: the workflow says so
         check_output_folder(args.workspace, "WORKSPACE")
     outputs = workspace_outputs(args.workspace)

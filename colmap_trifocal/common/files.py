@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -39,12 +40,24 @@ class Input:
     path: Path
     what: str
     files: tuple[Path, ...]
+    #: A database: its backups (``--write``'s ``<name>.bak``, ``.bak1``, ...) are protected
+    #: too, existing or not: an output written after a write would replace the only copy
+    #: of the original.
+    has_backups: bool = False
 
     @classmethod
     def database(cls, path: Path, name: str = "DATABASE", what: str = "the database") -> Input:
         """A SQLite database with its companion files (``-wal``, ``-shm``, ``-journal``)."""
         companions = [Path(f"{path}{suffix}") for suffix in SQLITE_COMPANIONS]
-        return cls(name, path, what, (path, *companions))
+        return cls(name, path, what, (path, *companions), has_backups=True)
+
+    def is_backup_name(self, real: Path) -> bool:
+        """Whether the real path ``real`` is (or would be) a backup of this database."""
+        if not self.has_backups:
+            return False
+        folder = Path(os.path.realpath(self.path.parent))
+        pattern = rf"\.?{re.escape(self.path.name)}\.bak(\d*|\.\w{{8}}\.tmp)"
+        return real.parent == folder and re.fullmatch(pattern, real.name) is not None
 
     @classmethod
     def folder(cls, path: Path, name: str, suffixes: Sequence[str] | None = None) -> Input:
@@ -84,14 +97,25 @@ def refuse_outputs_over_inputs(outputs: Iterable[Output], inputs: Iterable[Input
     input is caught as well as its own path), and, when it is a folder (replaced or
     emptied), when any input or input file lies inside it (its real path below the
     folder; a symlink into the folder counts). An output that does not exist yet
-    replaces nothing: a new file inside an input folder is allowed. The outputs are
+    replaces nothing: a new file inside an input folder is allowed, but not one named
+    as a database input's backup (:meth:`Input.is_backup_name`). The outputs are
     also checked against each other (:func:`_refuse_overlapping_outputs`).
 
     Raises:
         CalibrationError: an output is an input, or holds one, or is another output.
     """
     outputs = list(outputs)
+    inputs = list(inputs)
     _refuse_overlapping_outputs(outputs)
+    for written in outputs:
+        real = Path(os.path.realpath(written.path))
+        for given in inputs:
+            if given.is_backup_name(real):
+                raise CalibrationError(
+                    f"{written.option} {written.path} is a backup name of {given.what} "
+                    f"{given.path} (--write keeps the original there): refusing to write "
+                    f"it{written.hint}"
+                )
     existing = [(output, file_identity(output.path)) for output in outputs]
     files = {identity: output for output, identity in existing if identity is not None}
     folders = {identity: output for identity, output in files.items() if os.path.isdir(output.path)}

@@ -3,9 +3,9 @@
 Everything that opens the user's database with Python's ``sqlite3`` goes through here, so
 that a lock held elsewhere waits ``_LOCK_TIMEOUT_S`` seconds everywhere, every SQLite error
 becomes the same one-line :class:`CalibrationError` (classified by SQLite's error code), and
-the user's file is copied one way: :func:`copy_database`, used for the snapshot that is
-read, the copy ``run`` works on, and the backup before a write when committed changes wait
-in the ``-wal`` (otherwise the backup is the file's own bytes, see :mod:`.writing`).
+the user's file is copied one way, SQLite's backup API: :func:`copy_database` for the
+snapshot that is read and the copy ``run`` works on, :func:`copy_open_database` for the
+backup a write makes while it holds the write lock (see :mod:`.writing`).
 
 pycolmap is never pointed at the user's file: ``pycolmap.Database.open`` writes to an
 existing database (schema set-up rewrites the header even when nothing else changes), and
@@ -170,6 +170,27 @@ def copy_database(path: Path, target: Path, without_blobs: frozenset[str] = froz
             logger.debug("database changed while copying; copying again with locking: %s", path)
             target.write_bytes(b"")
         _copy(_uri(path, "mode=ro"), target, without_blobs, path)
+    except sqlite3.Error as exc:
+        raise database_error(exc, path, "copy", copy_folder=target.parent) from exc
+
+
+def copy_open_database(path: Path, target: Path) -> None:
+    """Copy the database at ``path`` into ``target`` while this process holds a connection
+    to it (the write lock of :mod:`.writing`).
+
+    SQLite's backup API through a second, read-only connection of the same SQLite library:
+    the file is never opened by Python itself, because closing any descriptor of a file
+    drops every POSIX lock the process holds on it (SQLite's "How To Corrupt An SQLite
+    Database File", §2.2), and with the lock gone another process may checkpoint and
+    delete the ``-wal`` the write is about to commit into. The copy holds every committed
+    change, those still in the ``-wal`` included. (The write connection itself cannot be
+    the source: SQLite's backup refuses a source in a write transaction.)
+
+    Raises:
+        CalibrationError: locked, corrupt, or no room for the copy.
+    """
+    try:
+        _copy(_uri(path, "mode=ro"), target, frozenset(), path)
     except sqlite3.Error as exc:
         raise database_error(exc, path, "copy", copy_folder=target.parent) from exc
 

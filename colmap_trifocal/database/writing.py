@@ -4,7 +4,8 @@ Order of events: take the write lock (``BEGIN IMMEDIATE``: no other connection c
 from now on), remove backup copies that earlier writes left unfinished (a write makes one
 only while it holds that lock, so one seen now belongs to a write that was killed), check
 the cameras, copy the database to a hidden temporary file, flush it to disk and give it
-the name ``<name>.bak`` (``.bak1``, ... if taken), UPDATE, COMMIT, read back. Until COMMIT
+the name ``<name>.bak`` (``.bak1``, ... if taken), UPDATE, COMMIT, read back on a fresh
+connection. Until COMMIT
 any error or interrupt (Ctrl-C, SIGTERM, SIGHUP) removes the backup and rolls back,
 leaving the database byte-identical and no backup behind; COMMIT itself is the one step
 during which these signals wait (:func:`_write_and_commit`).
@@ -14,13 +15,19 @@ pycolmap's ``DatabaseTransaction`` ends with ``END TRANSACTION`` whatever happen
 write interrupted half-way is committed, a failed COMMIT is only logged), opening the file
 with pycolmap rewrites its header, and pycolmap's own SQLite does not see the write lock of
 Python's ``sqlite3`` in the same process.
+
+While the write connection is open, the file is never opened by Python itself (the
+backup is SQLite's backup API through a second connection): closing any descriptor of a
+file drops every POSIX lock the process holds on it, and another process's reader could
+then checkpoint and delete the ``-wal`` the write commits into (SQLite's "How To Corrupt
+An SQLite Database File", §2.2). The parameters are read back after COMMIT on a new
+connection; where they differ, the write fails with ``error:``.
 """
 
 from __future__ import annotations
 
 import os
 import re
-import shutil
 import sqlite3
 import stat
 import tempfile
@@ -38,9 +45,8 @@ from .sqlite_files import (
     check_sqlite_file,
     check_tables,
     connect,
-    copy_database,
+    copy_open_database,
     database_error,
-    sidecar,
 )
 
 
@@ -98,7 +104,10 @@ def write_intrinsics(
             check_tables(con, path)
             con.execute("BEGIN IMMEDIATE")
             _write_and_commit(con, path, cameras, made)
-            _verify_written(con, cameras, path)
+        # Read-write although it only reads: as the last connection it checkpoints and
+        # removes the -wal and -shm files on closing, which a read-only one cannot.
+        with closing(connect(path, "mode=rw")) as fresh:
+            _verify_written(fresh, cameras, path, made)
     except sqlite3.Error as exc:
         raise database_error(exc, path, "write") from exc
     logger.info("wrote intrinsics of %d cameras to %s", len(cameras), path)
@@ -199,12 +208,19 @@ def _update_params(con: sqlite3.Connection, cameras: dict[int, CameraInfo]) -> N
     )
 
 
-def _verify_written(con: sqlite3.Connection, cameras: dict[int, CameraInfo], path: Path) -> None:
-    """Read the params back and compare them bit for bit with what was written."""
+def _verify_written(
+    con: sqlite3.Connection, cameras: dict[int, CameraInfo], path: Path, backup: _Backup | None
+) -> None:
+    """Read the params back on a fresh connection, after COMMIT, and compare them bit for
+    bit with what was written: a write that reports success must be on disk."""
     for camera_id, cam in cameras.items():
         row = con.execute("SELECT params FROM cameras WHERE camera_id = ?", (camera_id,)).fetchone()
         if row is None or bytes(row[0]) != _params_blob(cam):
-            raise CalibrationError(f"verification failed after writing camera {camera_id}: {path}")
+            kept = "" if backup is None else f"; backup: {backup.published}"
+            raise CalibrationError(
+                f"the database does not hold camera {camera_id}'s new parameters after the "
+                f"write (another process changed it?): {path}{kept}"
+            )
 
 
 # --------------------------------------------------------------------------- the backup
@@ -317,17 +333,12 @@ def _claim_backup_path(backup: _Backup) -> None:
 def _copy_database(path: Path, target: Path) -> None:
     """Copy the database at ``path`` into the existing file ``target`` and flush it to disk.
 
-    The caller holds the write lock, so nobody else can commit meanwhile. If the ``-wal``
-    file is empty the main file holds the whole database and is copied byte for byte (the
-    backup is then identical to the file); otherwise :func:`.copy_database` copies it, so
-    that committed changes still in the WAL are included.
+    The caller holds the write lock, so nobody else can commit meanwhile; the copy is
+    SQLite's backup API (:func:`.copy_open_database`), never Python's own reading of the
+    file, whose closing would drop that lock. It holds the committed changes still in the
+    ``-wal``, and the same rows as the file (its header's change counters differ).
     """
-    wal = sidecar(path, "-wal")
-    if wal.exists() and wal.stat().st_size > 0:
-        copy_database(path, target)
-    else:
-        shutil.copyfile(path, target)
-        shutil.copystat(path, target)
+    copy_open_database(path, target)
     fd = os.open(target, os.O_RDONLY)
     try:
         os.fsync(fd)

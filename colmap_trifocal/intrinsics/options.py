@@ -192,15 +192,25 @@ def _is_integer(value: object) -> bool:
     return isinstance(value, Integral) and not isinstance(value, bool)
 
 
+#: The options that are True or False (a string such as "no" is refused, not taken as True).
+BOOLEAN_OPTIONS = ("no_prior", "write", "progress", "focal_search", "restart", "triplet_bundle")
+
+
 def check_option_values(options: CalibrationOptions) -> None:
     """CalibrationError for a value of the wrong type or outside its range.
 
     The prior is normalised to a tuple of four floats (a list or an array is taken).
     """
-    if options.method not in METHODS:
+    if not isinstance(options.method, str) or options.method not in METHODS:
         raise CalibrationError(f"unknown method {options.method!r} (choose from {METHODS})")
-    if options.group not in GROUPINGS:
+    if not isinstance(options.group, str) or options.group not in GROUPINGS:
         raise CalibrationError(f"unknown --group {options.group!r} (choose from {GROUPINGS})")
+    for name in BOOLEAN_OPTIONS:
+        value = getattr(options, name)
+        if not isinstance(value, bool | np.bool_):
+            raise CalibrationError(f"{name} must be True or False, got {value!r}")
+    if options.sequence is not None and not isinstance(options.sequence, bool | np.bool_):
+        raise CalibrationError(f"sequence must be True, False or None, got {options.sequence!r}")
     if not _is_integer(options.seed) or not 0 <= int(options.seed) <= MAX_SEED:
         raise CalibrationError(
             f"--seed must be an integer in [0, {MAX_SEED}], got {options.seed!r}"
@@ -249,13 +259,11 @@ def check_option_values(options: CalibrationOptions) -> None:
 
 
 def check_options(options: CalibrationOptions) -> None:
-    """CalibrationError for options that exclude each other or unknown choices."""
+    """CalibrationError for a value of the wrong type (checked again here: the options may
+    have changed since they were made) or options that exclude each other."""
+    check_option_values(options)
     if options.no_prior and options.prior is not None:
         raise CalibrationError("--prior and --no-prior exclude each other")
-    if options.method not in METHODS:
-        raise CalibrationError(f"unknown method {options.method!r} (choose from {METHODS})")
-    if options.group not in GROUPINGS:
-        raise CalibrationError(f"unknown --group {options.group!r} (choose from {GROUPINGS})")
 
 
 def start_source(camera: CameraInfo, options: CalibrationOptions) -> str:

@@ -63,7 +63,7 @@ from .mapping import (
 )
 from .report import RunReport, build_report
 from .visualize import load_model
-from .workspace import WORKSPACE_OUTPUTS, open_workspace
+from .workspace import WORKSPACE_OUTPUTS, open_workspace, refuse_workspace_over_images
 
 
 @dataclass
@@ -120,10 +120,13 @@ def workspace_outputs(workspace: Path) -> list[Output]:
 def check_inputs_survive(images: Path | None, workspace: Path, options: RunOptions) -> None:
     """Refuse a run that would overwrite or delete one of its inputs.
 
-    No workspace output may be an input file (also not through a symlink or a hard link),
-    and no input may lie inside one (``sparse/`` is removed with ``--overwrite``): see
+    The workspace may not be, hold or lie inside the image folder
+    (:func:`.workspace.refuse_workspace_over_images`); no workspace output may be an input
+    file (also not through a symlink or a hard link), and no input may lie inside one
+    (``sparse/`` is removed with ``--overwrite``): see
     :func:`~colmap_trifocal.common.files.refuse_outputs_over_inputs`.
     """
+    refuse_workspace_over_images(images, workspace)
     refuse_outputs_over_inputs(workspace_outputs(workspace), run_inputs(images, options))
 
 

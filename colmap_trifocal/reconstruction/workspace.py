@@ -31,6 +31,29 @@ WORKSPACE_OUTPUTS = ("database.db", "sparse", "report.json")
 LOCK_NAME = ".colmap-trifocal.lock"
 
 
+def refuse_workspace_over_images(images: Path | None, workspace: Path) -> None:
+    """CalibrationError where the workspace is the image folder (or a link to it), holds
+    it, or lies inside it (real paths): a run writes ``database.db``, ``sparse/`` and
+    ``report.json`` there, and ``--overwrite`` removes them first, which in the image
+    folder, or in the COLMAP project that holds it, are the user's own."""
+    if images is None:
+        return
+    real_images = Path(os.path.realpath(images))
+    real_workspace = Path(os.path.realpath(workspace))
+    if real_workspace == real_images:
+        relation = "is the image folder"
+    elif real_images in real_workspace.parents:
+        relation = "is inside the image folder"
+    elif real_workspace in real_images.parents:
+        relation = "holds the image folder"
+    else:
+        return
+    raise CalibrationError(
+        f"WORKSPACE {workspace} {relation} (IMAGES {images}): refusing to write the run's "
+        "database.db, sparse/ and report.json there (use a new folder for WORKSPACE)"
+    )
+
+
 @contextmanager
 def open_workspace(workspace: Path, overwrite: bool) -> Iterator[Path]:
     """Create and lock ``workspace``, then :func:`prepare_workspace` it; unlock at the end.

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
+from ..common.errors import CalibrationError
 from ..intrinsics.results import PARAMETER_NAMES
 from ..reconstruction.report import RunReport
 from ..reconstruction.workflow import RunOptions, run_pipeline
@@ -94,15 +95,32 @@ def run_demo(seed: int = 0, workdir: Path | None = None, method: str = "msac-opt
     Outputs go to ``workdir`` (``demo.db`` and the workspace ``demo/``), or to a
     temporary folder that is removed afterwards.
     """
+    if workdir is not None:
+        refuse_existing_demo(Path(workdir))
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(workdir) if workdir is not None else Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
         database = folder / "demo.db"
-        database.unlink(missing_ok=True)
         truth, prior = make_demo_database(database, seed=seed)
         options = RunOptions(method=method, seed=seed, database=database, overwrite=True)
         report = run_pipeline(None, folder / "demo", options)
         return DemoResult(truth=truth, prior=prior, report=report)
+
+
+#: What the demo writes into a ``workdir``.
+DEMO_OUTPUTS = ("demo.db", "demo")
+
+
+def refuse_existing_demo(workdir: Path) -> None:
+    """CalibrationError where ``workdir`` already holds a demo's outputs (``demo.db``, the
+    workspace ``demo/``): the demo never replaces files it did not make in this run."""
+    for name in DEMO_OUTPUTS:
+        path = workdir / name
+        if path.exists() or path.is_symlink():
+            raise CalibrationError(
+                f"{path} already exists: refusing to replace it (remove it or keep the demo "
+                "in another folder)"
+            )
 
 
 def format_demo(result: DemoResult) -> str:
