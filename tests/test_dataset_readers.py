@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -62,10 +63,20 @@ def test_ground_truth_view_and_scene() -> None:
 
 
 def test_registry_errors(tmp_path: Path) -> None:
-    assert DATASET_KINDS == ("strecha", "colmap", "blendedmvs", "kitti", "tum", "dtu", "middlebury")
+    kinds = (
+        "strecha",
+        "colmap",
+        "blendedmvs",
+        "kitti",
+        "tum",
+        "dtu",
+        "middlebury",
+        "euroc",
+        "nerf",
+    )
+    assert DATASET_KINDS == kinds
     assert read_error("eth3d", tmp_path) == (
-        "unknown dataset kind 'eth3d' (expected one of: "
-        "strecha, colmap, blendedmvs, kitti, tum, dtu, middlebury)"
+        f"unknown dataset kind 'eth3d' (expected one of: {', '.join(kinds)})"
     )
     missing = tmp_path / "nowhere"
     assert read_error("kitti", missing) == f"kitti dataset path {missing} does not exist"
@@ -487,6 +498,82 @@ def test_middlebury_scene(tmp_path: Path) -> None:
     np.testing.assert_allclose(second.centre, [-0.1, -0.2, -0.3])
     chosen = read_scene("middlebury", tmp_path, par_file="templeSR_par.txt")
     assert chosen.name == "templeSR" and [v.name for v in chosen.views] == ["templeR0002.png"]
+
+
+def test_middlebury_images_in_a_folder(tmp_path: Path) -> None:
+    """The par file beside an ``images/`` folder (the shared temple ring's layout)."""
+    write(tmp_path / "templeR_par.txt", f"1\n{SECOND_LINE}\n")
+    write_image(tmp_path / "images" / "templeR0002.png", 64, 48)
+    scene = read_scene("middlebury", tmp_path)
+    assert scene.image_dir == tmp_path / "images"
+    assert (scene.views[0].width, scene.views[0].height) == (64, 48)
+
+
+# --- euroc --------------------------------------------------------------------------
+
+SENSOR_YAML = """# Kalibr calibration
+camera_model: pinhole
+intrinsics: [458.654, 457.296, 367.215, 248.375]   # fu, fv, cu, cv
+distortion_model: radial-tangential
+distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
+resolution: [752, 480]
+"""
+
+
+def test_euroc_scene(tmp_path: Path) -> None:
+    write(tmp_path / "sensor.yaml", SENSOR_YAML)
+    for name in ("2.png", "1.png"):
+        write_image(tmp_path / "data" / name, 752, 480)
+    scene = read_scene("euroc", tmp_path)
+    assert scene.image_dir == tmp_path / "data"
+    assert [v.name for v in scene.views] == ["1.png", "2.png"]
+    np.testing.assert_allclose(scene.views[0].intrinsics, [458.654, 457.296, 367.715, 248.875])
+    assert (scene.views[0].width, scene.views[0].height) == (752, 480)
+    assert scene.distortion == pytest.approx(
+        {"k1": -0.28340811, "k2": 0.07395907, "p1": 0.00019359, "p2": 1.76187114e-05}
+    )
+
+
+def test_euroc_malformed(tmp_path: Path) -> None:
+    assert (
+        read_error("euroc", tmp_path) == f"EuRoC sensor file {tmp_path / 'sensor.yaml'} not found"
+    )
+    sensor = write(tmp_path / "sensor.yaml", SENSOR_YAML.replace("367.215, 248.375", "367.2"))
+    assert read_error("euroc", tmp_path) == (
+        f"cannot read EuRoC sensor file {sensor}: expected intrinsics: [4 numbers]"
+    )
+    write(sensor, SENSOR_YAML)
+    assert read_error("euroc", tmp_path) == f"no images/ or data/ folder in {tmp_path}"
+
+
+# --- nerf ---------------------------------------------------------------------------
+
+
+def test_nerf_scene(tmp_path: Path) -> None:
+    """fx = (W / 2) / tan(angle / 2), centred; OpenGL camera-to-world becomes OpenCV
+    world-to-camera (a camera at (0, 0, 4) looking down -z sees the origin ahead)."""
+    c2w = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]
+    frames = [{"file_path": "./train/r_0", "transform_matrix": c2w}]
+    write(tmp_path / "transforms_train.json", json.dumps({"camera_angle_x": 0.5, "frames": frames}))
+    write_image(tmp_path / "train" / "r_0.png", 80, 60)
+    scene = read_scene("nerf", tmp_path)
+    (view,) = scene.views
+    assert view.name == "train/r_0.png"
+    focal = 40 / np.tan(0.25)
+    np.testing.assert_allclose(view.intrinsics, [focal, focal, 40, 30])
+    np.testing.assert_allclose(view.centre, [0, 0, 4])
+    origin_in_camera = view.rotation @ np.zeros(3) + view.translation
+    assert origin_in_camera[2] == pytest.approx(4.0)  # ahead (OpenCV: +z forward)
+
+
+def test_nerf_malformed(tmp_path: Path) -> None:
+    transforms = write(tmp_path / "transforms_train.json", json.dumps({"frames": []}))
+    assert read_error("nerf", tmp_path).startswith(
+        f"cannot read NeRF transforms file {transforms}: "
+    )
+    assert read_error("nerf", tmp_path, split="test") == (
+        f"NeRF transforms file {tmp_path / 'transforms_test.json'} not found"
+    )
 
 
 def test_middlebury_malformed(tmp_path: Path) -> None:

@@ -41,6 +41,8 @@ def build_database(
     matcher: str = "exhaustive",
     single_camera: bool = True,
     camera_mode: str | None = None,
+    num_threads: int = -1,
+    seed: int | None = None,
 ) -> Path:
     """Extract SIFT features (CPU) and match them, writing a new COLMAP database.
 
@@ -56,6 +58,10 @@ def build_database(
         single_camera: one camera for all images (True) or one per image.
         camera_mode: one of ``CAMERA_MODES`` (overrides ``single_camera``); ``auto`` is
             what COLMAP's own tools do.
+        num_threads: threads of extraction and matching (-1: every core). With one
+            thread and a ``seed`` the database is the same on every build; with more,
+            pycolmap's threads give images their ids in the order they finish.
+        seed: the random seed of the geometric verification's RANSAC (None: random).
     """
     image_dir, database = Path(image_dir), Path(database)
     check_max_image_size(max_image_size)
@@ -67,6 +73,12 @@ def build_database(
     reader.camera_model = camera_model
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.max_image_size = max_image_size
+    extraction.num_threads = num_threads
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = num_threads
+    verification = pycolmap.TwoViewGeometryOptions()
+    if seed is not None:
+        verification.ransac.random_seed = seed
     if camera_mode is not None and camera_mode not in CAMERA_MODES:
         raise CalibrationError(f"unknown camera mode {camera_mode!r} (choose from {CAMERA_MODES})")
     if camera_mode is None:
@@ -81,8 +93,11 @@ def build_database(
         extraction_options=extraction,
         device=pycolmap.Device.cpu,
     )
-    if matcher == "exhaustive":
-        pycolmap.match_exhaustive(database, device=pycolmap.Device.cpu)
-    else:
-        pycolmap.match_sequential(database, device=pycolmap.Device.cpu)
+    match = pycolmap.match_exhaustive if matcher == "exhaustive" else pycolmap.match_sequential
+    match(
+        database,
+        matching_options=matching,
+        verification_options=verification,
+        device=pycolmap.Device.cpu,
+    )
     return database

@@ -17,12 +17,24 @@ from .base import DatasetScene, GroundTruthView, one_line
 from .blendedmvs import read_blendedmvs_scene
 from .colmap_model import read_colmap_scene
 from .dtu import read_dtu_scene
+from .euroc import read_euroc_scene
 from .kitti import read_kitti_scene
 from .middlebury import read_middlebury_scene
+from .nerf import read_nerf_scene
 from .strecha import read_strecha_scene
 from .tum import read_tum_scene
 
-DATASET_KINDS = ("strecha", "colmap", "blendedmvs", "kitti", "tum", "dtu", "middlebury")
+DATASET_KINDS = (
+    "strecha",
+    "colmap",
+    "blendedmvs",
+    "kitti",
+    "tum",
+    "dtu",
+    "middlebury",
+    "euroc",
+    "nerf",
+)
 
 READERS: dict[str, Callable[..., DatasetScene]] = {
     "strecha": read_strecha_scene,
@@ -32,6 +44,8 @@ READERS: dict[str, Callable[..., DatasetScene]] = {
     "tum": read_tum_scene,
     "dtu": read_dtu_scene,
     "middlebury": read_middlebury_scene,
+    "euroc": read_euroc_scene,
+    "nerf": read_nerf_scene,
 }
 
 __all__ = ["DATASET_KINDS", "DatasetScene", "GroundTruthView", "read_scene"]

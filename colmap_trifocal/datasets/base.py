@@ -62,6 +62,8 @@ class DatasetScene:
     views: list[GroundTruthView]  # in the dataset's natural order
     # name -> most-overlapping names with scores, where the format provides it
     overlap: dict[str, list[tuple[str, float]]] | None = None
+    #: The lens's distortion where the format gives one (OpenCV's names: k1, k2, p1, p2).
+    distortion: dict[str, float] | None = None
 
     def view(self, name: str) -> GroundTruthView:
         """The view of an image (name relative to ``image_dir``)."""

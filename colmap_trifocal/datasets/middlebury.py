@@ -1,12 +1,13 @@
 """Middlebury multi-view stereo sets (Seitz et al., CVPR 2006: temple, dino, ...).
 
 Kind ``middlebury``; ``path`` is a folder holding ``<name>_par.txt`` and the images
-it lists. The par file's first line is the number of images, then one line per
-image: ``imgname.png k11 k12 k13 k21 k22 k23 k31 k32 k33 r11 ... r33 t1 t2 t3``
-with ``x ~ K [R | t] X`` (R, t world-to-camera). If several ``*_par.txt`` exist,
-option ``par_file`` picks one (a name in the folder or a path), else the first
-sorted. Views keep the par file's order; width and height come from the first
-image. The matrices are taken to be in the OpenCV pixel convention: cx, cy + 0.5.
+it lists (or an ``images/`` folder holding them). The par file's first line is the
+number of images, then one line per image:
+``imgname.png k11 k12 k13 k21 k22 k23 k31 k32 k33 r11 ... r33 t1 t2 t3`` with
+``x ~ K [R | t] X`` (R, t world-to-camera). If several ``*_par.txt`` exist, option
+``par_file`` picks one (a name in the folder or a path), else the first sorted. Views
+keep the par file's order; width and height come from the first image. The matrices
+are taken to be in the OpenCV pixel convention: cx, cy + 0.5.
 """
 
 from __future__ import annotations
@@ -42,7 +43,10 @@ def read_middlebury_scene(path: Path | str, par_file: Path | str | None = None) 
         par = Path(par_file) if Path(par_file).is_absolute() else folder / par_file
     require_file(par, "Middlebury parameter file")
     names, K, R, t = read_par_file(par)
-    width, height = image_size(folder / names[0]) or (None, None)
+    image_dir = folder
+    if not (folder / names[0]).is_file() and (folder / "images" / names[0]).is_file():
+        image_dir = folder / "images"
+    width, height = image_size(image_dir / names[0]) or (None, None)
     views = [
         GroundTruthView(
             name=name,
@@ -55,7 +59,7 @@ def read_middlebury_scene(path: Path | str, par_file: Path | str | None = None) 
         for name, K_i, R_i, t_i in zip(names, K, R, t, strict=True)
     ]
     scene_name = par.name[: -len(PAR_SUFFIX)] if par.name.endswith(PAR_SUFFIX) else par.stem
-    return DatasetScene(kind="middlebury", name=scene_name, image_dir=folder, views=views)
+    return DatasetScene(kind="middlebury", name=scene_name, image_dir=image_dir, views=views)
 
 
 def read_par_file(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:

@@ -1,0 +1,115 @@
+"""The real scenes of ``../shared/datasets`` and their two COLMAP databases.
+
+Shared by ``benchmarks/real.py`` and the real-data tier of the tests
+(``tests/test_real_scenes.py``), so that both measure the same inputs:
+
+* ``default``: what a COLMAP user brings. pycolmap's default extraction
+  (``CameraMode.AUTO``: one SIMPLE_RADIAL camera per image at COLMAP's guess
+  f = 1.2 · max(w, h), centred, k = 0), SIFT with the longest side at most 1600 px,
+  then exhaustive matching (sequential for the drive); on one thread with a seeded
+  verification, so that every build gives the same database;
+* ``pinhole``: the same features and verified matches with every image on one PINHOLE
+  camera at COLMAP's guess (the cameras merged, the model changed). Built from the
+  default database rather than extracted again, so the two differ only in the camera.
+
+Ground truth in pixels, COLMAP's pixel convention; where the images share one camera
+(all of these) the mean over views.
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pycolmap
+
+from colmap_trifocal.database.features import build_database
+from colmap_trifocal.database.shared_cameras import merge_group_cameras
+from colmap_trifocal.datasets import DatasetScene, read_scene
+
+#: The two databases of every scene (see the module docstring).
+DATABASE_KINDS = ("default", "pinhole")
+
+
+@dataclass(frozen=True)
+class RealScene:
+    """One shared scene: where it is, how its database is built, what class it stands for."""
+
+    name: str
+    kind: str  # a dataset reader (colmap_trifocal.datasets.DATASET_KINDS)
+    path: str  # relative to the datasets root
+    scene_class: str
+    matcher: str = "exhaustive"
+
+    def read(self, root: Path) -> DatasetScene:
+        return read_scene(self.kind, root / self.path)
+
+    def truth(self, root: Path) -> np.ndarray:
+        """(fx, fy, cx, cy) in pixels, COLMAP's pixel convention."""
+        return self.read(root).mean_intrinsics()
+
+    def build_options(self) -> dict[str, object]:
+        """``build_database`` keywords of the ``default`` database (beside its defaults:
+        SIFT at 1600 px, exhaustive matching): one thread and a seed, so that every build
+        is the same database (the tier in CI and the benchmark here measure one input)."""
+        options: dict[str, object] = {
+            "camera_model": "SIMPLE_RADIAL",
+            "camera_mode": "auto",
+            "num_threads": 1,
+            "seed": 0,
+        }
+        if self.matcher != "exhaustive":
+            options["matcher"] = self.matcher
+        return options
+
+
+SCENES = (
+    RealScene("fountain-P11", "strecha", "strecha/fountain-P11", "object"),
+    RealScene("Herz-Jesus-P8", "strecha", "strecha/Herz-Jesus-P8", "object"),
+    RealScene("entry-P10", "strecha", "strecha/entry-P10", "facade"),
+    RealScene("euroc-V1_01", "euroc", "euroc/V1_01_cam0", "real lens"),
+    RealScene("lego", "nerf", "nerf_lego", "sparse object"),
+    RealScene("temple-ring", "middlebury", "middlebury/templeSparseRing", "ring"),
+    RealScene("kitti-seq2", "kitti", "kitti/sequences/seq2", "drive", matcher="sequential"),
+)
+SCENES_BY_NAME = {scene.name: scene for scene in SCENES}
+
+
+def image_names(scene: DatasetScene) -> list[str]:
+    """The scene's images (relative to ``scene.image_dir``) in the dataset's order."""
+    return [view.name for view in scene.views]
+
+
+def build_default_database(scene: RealScene, root: Path, target: Path) -> Path:
+    """COLMAP's default database of ``scene`` at ``target`` (must not exist)."""
+    data = scene.read(root)
+    return build_database(data.image_dir, target, image_names(data), **scene.build_options())
+
+
+def derive_pinhole_database(default: Path, target: Path) -> Path:
+    """A copy of ``default`` with every image on one PINHOLE camera at COLMAP's guess."""
+    shutil.copyfile(default, target)
+    with pycolmap.Database.open(str(target)) as db:
+        cameras = sorted(db.read_all_cameras(), key=lambda c: c.camera_id)
+    merge_group_cameras(target, [[c.camera_id for c in cameras]])
+    first = cameras[0]
+    width, height = first.width, first.height
+    focal = 1.2 * max(width, height)
+    camera = pycolmap.Camera(
+        model="PINHOLE",
+        width=width,
+        height=height,
+        params=[focal, focal, width / 2, height / 2],
+        camera_id=first.camera_id,
+    )
+    with pycolmap.Database.open(str(target)) as db:
+        db.update_camera(camera)
+    return target
+
+
+def prior_5(truth: np.ndarray, seed: int) -> tuple[float, float, float, float]:
+    """A start within ±5 % of the truth in every parameter (uniform, seeded)."""
+    values = np.asarray(truth, float) * (1.0 + np.random.default_rng(seed).uniform(-0.05, 0.05, 4))
+    return (float(values[0]), float(values[1]), float(values[2]), float(values[3]))
