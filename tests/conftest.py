@@ -45,9 +45,10 @@ import pytest
 
 from colmap_trifocal.database import features as features_module
 from colmap_trifocal.database.features import build_database
-from colmap_trifocal.datasets.strecha import DATASETS_ENV, default_datasets_root, scene_images
+from colmap_trifocal.datasets.strecha import DATASETS_ENV, default_datasets_root
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(PROJECT_ROOT / "benchmarks"))  # real_scenes: the benchmark's scenes
 #: Where the datasets are for ``real_data`` tests (read before any test changes the variable).
 DATASETS_ROOT = default_datasets_root(PROJECT_ROOT)
 #: ``$COLMAP_TRIFOCAL_DATASETS`` during a test without the ``real_data`` marker.
@@ -244,6 +245,38 @@ class DatabaseCache:
                     raise
         return entry / "sparse" / "0"
 
+    def derived(self, database: Path, recipe: str, derive: Callable[[Path, Path], Path]) -> Path:
+        """``derive(database, target)`` of a cached database, cached like it (keyed by its
+        sha256 and ``recipe``, the name of what ``derive`` does). Read it, never write it."""
+        key_recipe = {"format": CACHE_FORMAT, "database": _sha256_file(database), "recipe": recipe}
+        key = (
+            "derived-"
+            + hashlib.sha256(json.dumps(key_recipe, sort_keys=True).encode()).hexdigest()[:24]
+        )
+        entry = self.root / key
+        self.root.mkdir(parents=True, exist_ok=True)
+        with open(self.root / f"{key}.lock", "a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            if not (entry / "meta.json").is_file():
+                for stale in self.root.glob(f"{key}.building-*"):
+                    shutil.rmtree(stale, ignore_errors=True)
+                staging = Path(tempfile.mkdtemp(prefix=f"{key}.building-", dir=self.root))
+                try:
+                    derived = derive(database, staging / "database.db")
+                    meta = {**key_recipe, "sha256": _sha256_file(derived)}
+                    (staging / "meta.json").write_text(json.dumps(meta, indent=1))
+                    staging.chmod(0o755)
+                    os.rename(staging, entry)
+                except BaseException:
+                    shutil.rmtree(staging, ignore_errors=True)
+                    raise
+            meta = json.loads((entry / "meta.json").read_text())
+            result = entry / "database.db"
+            if _sha256_file(result) != meta["sha256"]:
+                shutil.rmtree(entry)
+                pytest.fail(f"the cached database {result} was changed after it was built")
+        return result
+
     @staticmethod
     def copy(database: Path, target: Path) -> Path:
         """A private copy of a cached database (for a test that writes)."""
@@ -272,15 +305,35 @@ def database_cache(
 
 
 @pytest.fixture(scope="session")
+def real_scene_database(database_cache: DatabaseCache) -> Callable[[str, str], Path]:
+    """Factory: (scene name, ``default`` or ``pinhole``) -> the scene's database as
+    ``benchmarks/real_scenes.py`` defines it (COLMAP's default extraction; the same matches
+    on one PINHOLE camera at COLMAP's guess). Cached (:class:`DatabaseCache`): read it,
+    copy it to write. Only for ``real_data`` tests."""
+    from real_scenes import SCENES_BY_NAME, derive_pinhole_database, image_names
+
+    def get(name: str, kind: str) -> Path:
+        scene = SCENES_BY_NAME[name]
+        data = scene.read(shared_dataset(""))
+        default = database_cache.get(data.image_dir, image_names(data), **scene.build_options())
+        if kind == "default":
+            return default
+        assert kind == "pinhole", kind
+        return database_cache.derived(default, "one PINHOLE camera", derive_pinhole_database)
+
+    return get
+
+
+@pytest.fixture(scope="session")
 def strecha_database(
-    database_cache: DatabaseCache,
+    real_scene_database: Callable[[str, str], Path],
 ) -> Callable[[str], tuple[Path, Path]]:
     """Factory: scene name -> (database path, scene folder), SIFT at 1600 px, exhaustive,
-    one PINHOLE camera. Cached (:class:`DatabaseCache`): read it, copy it to write."""
+    one PINHOLE camera at COLMAP's guess (``real_scene_database``'s ``pinhole``). Cached
+    (:class:`DatabaseCache`): read it, copy it to write."""
 
     def get(scene: str) -> tuple[Path, Path]:
-        folder = strecha_root() / scene
-        return database_cache.get(folder / "images", scene_images(folder)), folder
+        return real_scene_database(scene, "pinhole"), strecha_root() / scene
 
     return get
 

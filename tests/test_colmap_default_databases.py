@@ -42,16 +42,11 @@ def test_colmap_default_database(
     scene: str,
     num_images: int,
     tmp_path: Path,
-    database_cache: DatabaseCache,
+    real_scene_database: Callable[[str, str], Path],
     run_main: Callable[..., CliResult],
 ) -> None:
     folder = strecha_root() / scene
-    cached = database_cache.get(
-        folder / "images",
-        scene_images(folder),
-        camera_model="SIMPLE_RADIAL",
-        camera_mode="auto",  # what `colmap feature_extractor` does by default
-    )
+    cached = real_scene_database(scene, "default")  # what `colmap feature_extractor` makes
     database = DatabaseCache.copy(cached, tmp_path / "database.db")  # written below
     cameras = read_database(database).cameras
     assert len(cameras) == num_images
