@@ -24,7 +24,7 @@ from collections import Counter
 import numpy as np
 
 from colmap_trifocal import CalibrationOptions, calibrate_contents
-from colmap_trifocal.intrinsics.calibrate import default_guess
+from colmap_trifocal.intrinsics.api import default_guess
 from colmap_trifocal.intrinsics.results import PARAMETER_NAMES
 from colmap_trifocal.synthetic.database import scene_contents
 from colmap_trifocal.synthetic.lenses import narrow_lens, turntable, wide_lens

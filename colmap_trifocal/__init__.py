@@ -31,7 +31,7 @@ __version__ = "0.1.0"
 from .common.errors import CalibrationError
 
 if TYPE_CHECKING:
-    from .intrinsics.calibrate import (
+    from .intrinsics.api import (
         METHODS,
         CalibrationOptions,
         CameraCalibration,
@@ -64,7 +64,7 @@ _PIPELINE_EXPORTS = frozenset(
 
 def __getattr__(name: str) -> Any:
     if name in _PIPELINE_EXPORTS:
-        from .intrinsics import calibrate
+        from .intrinsics import api as calibrate
 
         return getattr(calibrate, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -19,13 +19,13 @@ from colmap_trifocal.database.camera_groups import format_ids, group_cameras
 from colmap_trifocal.database.cameras import CameraInfo
 from colmap_trifocal.database.shared_cameras import merge_group_cameras
 from colmap_trifocal.database.snapshot import read_database
-from colmap_trifocal.intrinsics.calibrate import (
+from colmap_trifocal.intrinsics.api import (
     CalibrationOptions,
     calibrate_contents_methods,
     calibrate_database,
     calibrate_groups,
 )
-from colmap_trifocal.intrinsics.camera_calibration import calibrate_camera
+from colmap_trifocal.intrinsics.pipeline import calibrate_camera
 
 #: SIMPLE_RADIAL (f, cx, cy, k) of pycolmap's synthetic cameras.
 SIMPLE_RADIAL = [1280.0, 512.0, 384.0, 0.05]

@@ -25,7 +25,7 @@ from conftest import CliResult, DatabaseCache, strecha_root
 from colmap_trifocal.database.shared_cameras import merge_group_cameras
 from colmap_trifocal.database.snapshot import read_database
 from colmap_trifocal.datasets.strecha import ground_truth_intrinsics, scene_images
-from colmap_trifocal.intrinsics.calibrate import CalibrationOptions, calibrate_database
+from colmap_trifocal.intrinsics.api import CalibrationOptions, calibrate_database
 
 
 def _error(values: dict | np.ndarray, truth: np.ndarray) -> float:

@@ -10,7 +10,7 @@ import pytest
 from conftest import intrinsics_of, synthesize
 
 from colmap_trifocal import CalibrationError, CalibrationOptions, calibrate_database
-from colmap_trifocal.intrinsics.focal_search import SEARCH_FACTORS, search_focal
+from colmap_trifocal.intrinsics.start.focal_search import SEARCH_FACTORS, search_focal
 from colmap_trifocal.synthetic.scenes import DEFAULT_INTRINSICS, make_scene
 
 TRUTH = DEFAULT_INTRINSICS

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from colmap_trifocal.common.errors import CalibrationError
-from colmap_trifocal.intrinsics.fundamental import (
+from colmap_trifocal.intrinsics.baselines.fundamental import (
     FundamentalCalibResult,
     _basis,
     _calibrate,

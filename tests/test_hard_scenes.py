@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 
 from colmap_trifocal import CalibrationError, CalibrationOptions, calibrate_contents
+from colmap_trifocal.geometry.motion import moves_forward
 from colmap_trifocal.geometry.tracks import MatchGraph, select_triplets
-from colmap_trifocal.intrinsics.diagnosis import diagnose, moves_forward
-from colmap_trifocal.intrinsics.focal_search import FocalSearchResult, search_focal
+from colmap_trifocal.intrinsics.assess.diagnosis import diagnose
 from colmap_trifocal.intrinsics.options import default_guess
-from colmap_trifocal.intrinsics.start_candidates import held_values
+from colmap_trifocal.intrinsics.start.candidates import held_values
+from colmap_trifocal.intrinsics.start.focal_search import FocalSearchResult, search_focal
 from colmap_trifocal.reconstruction.mapping import (
     describe_attempts,
     incremental_mapping_with_retries,

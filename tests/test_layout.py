@@ -143,7 +143,7 @@ def test_public_api_imports_from_the_top_level(tmp_path: Path) -> None:
     """``__all__`` is the documented API; each name is the object of its stage; a user
     error raises CalibrationError; importing the package loads no heavy module."""
     from colmap_trifocal.common import errors
-    from colmap_trifocal.intrinsics import calibrate
+    from colmap_trifocal.intrinsics import api as calibrate
 
     assert set(colmap_trifocal.__all__) == PUBLIC_API
     for name in PUBLIC_API - {"__version__", "CalibrationError"}:

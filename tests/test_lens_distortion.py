@@ -17,7 +17,7 @@ from colmap_trifocal import CalibrationOptions, calibrate_contents, calibrate_da
 from colmap_trifocal.database.cameras import CameraInfo
 from colmap_trifocal.database.features import build_database
 from colmap_trifocal.datasets.strecha import ground_truth_intrinsics, scene_images
-from colmap_trifocal.intrinsics.calibrate import write_calibrations
+from colmap_trifocal.intrinsics.api import write_calibrations
 from colmap_trifocal.synthetic.database import CAMERA_ID, scene_contents, write_database
 from colmap_trifocal.synthetic.facade import facade_scene
 from colmap_trifocal.synthetic.lenses import (

@@ -8,8 +8,9 @@ import numpy as np
 
 from colmap_trifocal import CalibrationOptions
 from colmap_trifocal.database.cameras import CameraInfo
-from colmap_trifocal.intrinsics.camera_input import camera_input
-from colmap_trifocal.intrinsics.lens_search import (
+from colmap_trifocal.intrinsics.inputs.camera_input import camera_input
+from colmap_trifocal.intrinsics.inputs.triplet_selection import select_camera_triplets
+from colmap_trifocal.intrinsics.lens.search import (
     CLEAR_RATIO,
     DIVISION,
     POLYNOMIAL,
@@ -17,7 +18,6 @@ from colmap_trifocal.intrinsics.lens_search import (
     radial_undistort,
     search_lens,
 )
-from colmap_trifocal.intrinsics.triplet_selection import select_camera_triplets
 from colmap_trifocal.synthetic.database import CAMERA_ID, scene_contents
 from colmap_trifocal.synthetic.lenses import (
     lens_scene,

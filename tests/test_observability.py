@@ -5,22 +5,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from colmap_trifocal.intrinsics.observability import (
+from colmap_trifocal.intrinsics.solve.constraints import intrinsics_to_theta, theta_to_intrinsics
+from colmap_trifocal.intrinsics.solve.observability import (
     MAX_RELATIVE_STD,
     effective_std,
     relative_std,
     select_free_parameters,
     tolerance,
 )
-from colmap_trifocal.intrinsics.parametrization import (
+from colmap_trifocal.intrinsics.solve.parametrization import (
     FULL,
     HELD,
     SINGLE_FOCAL,
     FreeParameters,
     candidate_free_parameters,
 )
-from colmap_trifocal.intrinsics.selfcalibration import intrinsics_to_theta, theta_to_intrinsics
-from colmap_trifocal.intrinsics.uncertainty import (
+from colmap_trifocal.intrinsics.solve.uncertainty import (
     combined_information,
     image_groups,
     jackknife_covariance,

@@ -28,7 +28,7 @@ from colmap_trifocal.geometry.trifocal import (
     normalize_tensor,
     tensor_from_cameras,
 )
-from colmap_trifocal.intrinsics.selfcalibration import (
+from colmap_trifocal.intrinsics.solve.constraints import (
     MSAC_TAU,
     ConstraintProblem,
     intrinsics_to_theta,

@@ -34,11 +34,7 @@ from colmap_trifocal.geometry.trifocal import (
     quartic_constraints,
     tensor_from_cameras,
 )
-from colmap_trifocal.intrinsics.calibrate import (
-    CalibrationOptions,
-    CameraCalibration,
-    calibrate_contents,
-)
+from colmap_trifocal.intrinsics.api import CalibrationOptions, CameraCalibration, calibrate_contents
 
 #: No deadline, moderate example counts: the whole file runs in well under a minute.
 QUICK = settings(max_examples=150, deadline=None)

@@ -2,7 +2,7 @@
 
 COLMAP's default camera (``SIMPLE_RADIAL``, k = 0) on a real lens biases every
 intrinsic the constraints estimate; the calibration estimates k from the triplets'
-calibrated bundle adjustment (:mod:`colmap_trifocal.intrinsics.lens_distortion`),
+calibrated bundle adjustment (:mod:`colmap_trifocal.intrinsics.lens.distortion`),
 mapping starts from it, and ``run`` refines the distortion while mapping and in the
 final bundle adjustment, as plain COLMAP does.
 """

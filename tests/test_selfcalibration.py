@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 from colmap_trifocal.geometry.tensor_estimation import TripletTensor
-from colmap_trifocal.intrinsics.parametrization import SINGLE_FOCAL
-from colmap_trifocal.intrinsics.selfcalibration import (
+from colmap_trifocal.intrinsics.solve.constraints import (
     MSAC_TAU,
     ConstraintProblem,
     ConstraintSolution,
@@ -22,6 +21,7 @@ from colmap_trifocal.intrinsics.selfcalibration import (
     solve,
     theta_to_intrinsics,
 )
+from colmap_trifocal.intrinsics.solve.parametrization import SINGLE_FOCAL
 from colmap_trifocal.synthetic.scenes import make_scene, perturbed_prior, triplet_tensors
 
 METHODS = ("direct", "msac", "msac-opt")

@@ -30,7 +30,7 @@ from .calibrate_model import model_copy_flags
 from .output import check_output_file, is_stdout, one_line
 
 if TYPE_CHECKING:
-    from ..intrinsics.calibrate import CalibrationOptions
+    from ..intrinsics.api import CalibrationOptions
 
 #: Exit status when at least one input failed (the others' lines are written).
 EXIT_SOME_FAILED = 1

@@ -30,13 +30,13 @@ if TYPE_CHECKING:
     import pycolmap
 
     from ..database.snapshot import DatabaseContents
-    from ..intrinsics.calibrate import CalibrationOptions
+    from ..intrinsics.api import CalibrationOptions
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
     """``calibrate DATABASE [DATABASE ...]``: the contract in DESIGN.md."""
     from ..database.camera_groups import GROUPINGS
-    from ..intrinsics.calibrate import METHODS, CalibrationOptions
+    from ..intrinsics.api import METHODS, CalibrationOptions
     from ..reconstruction.mapping import REFINE_CHOICES
 
     calibrate = commands.add_parser(
@@ -126,8 +126,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """One database, one model folder, or many inputs (:mod:`.batch`); the exit status."""
+    from ..intrinsics.api import check_options
     from ..intrinsics.batch import check_input_path, is_model_folder
-    from ..intrinsics.calibrate import check_options
     from .batch import expand_inputs, run_batch
 
     options = _options(args)
@@ -148,8 +148,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_database(args: argparse.Namespace, database: Path, options: CalibrationOptions) -> int:
     """Check everything, calibrate, print the table, write the outputs; exit status 0."""
+    from ..intrinsics.api import updated_cameras, write_calibrations
     from ..intrinsics.batch import calibrate_path
-    from ..intrinsics.calibrate import updated_cameras, write_calibrations
 
     model = _check_arguments(args, database)
     json_to_stdout = args.json is not None and is_stdout(args.json)
@@ -191,7 +191,7 @@ def _run_database(args: argparse.Namespace, database: Path, options: Calibration
 
 def _options(args: argparse.Namespace) -> CalibrationOptions:
     """The calibration's options from the flags (CalibrationError on a bad value)."""
-    from ..intrinsics.calibrate import CalibrationOptions, parse_prior
+    from ..intrinsics.api import CalibrationOptions, parse_prior
 
     return CalibrationOptions(
         method=args.method,

@@ -22,12 +22,12 @@ from .output import check_output_file, is_stdout, write_text_output
 from .tables import print_comparisons, print_table
 
 if TYPE_CHECKING:
-    from ..intrinsics.calibrate import CalibrationOptions
+    from ..intrinsics.api import CalibrationOptions
 
 
 def run_model(args: argparse.Namespace, model: Path, options: CalibrationOptions) -> int:
     """Check, calibrate the model folder, print both tables, write the JSON; exit status 0."""
-    from ..intrinsics.calibrate import reconstruction_groups
+    from ..intrinsics.api import reconstruction_groups
 
     check_model_arguments(args, model)
     json_to_stdout = args.json is not None and is_stdout(args.json)

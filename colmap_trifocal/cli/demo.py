@@ -11,7 +11,7 @@ from .output import check_output_folder
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
     """``demo [--seed N] [--method M] [--keep DIR]``."""
-    from ..intrinsics.calibrate import METHODS
+    from ..intrinsics.api import METHODS
 
     demo = commands.add_parser(
         "demo", help="calibrate a synthetic database with a known camera (no download)"

@@ -23,7 +23,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     from ..database.camera_groups import GROUPINGS
     from ..database.cameras import SUPPORTED_MODELS
     from ..database.features import MATCHERS, MAX_IMAGE_SIZE_RANGE
-    from ..intrinsics.calibrate import METHODS
+    from ..intrinsics.api import METHODS
     from ..reconstruction.mapping import MAPPERS, REFINE_CHOICES
     from ..reconstruction.workflow import RunOptions
 

@@ -36,7 +36,7 @@ from ..database.features import build_database
 from ..database.snapshot import DatabaseContents, read_database
 from ..datasets import read_scene
 from ..datasets.base import DatasetScene
-from ..intrinsics.calibrate import CalibrationOptions, calibrate_contents_methods
+from ..intrinsics.api import CalibrationOptions, calibrate_contents_methods
 from ..reconstruction.mapping import (
     camera_intrinsics,
     incremental_mapping,

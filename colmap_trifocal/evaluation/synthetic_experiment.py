@@ -9,7 +9,7 @@ is the truth times ``1 + U(-5 %, +5 %)``. Each run draws one scene and one prior
 and calibrates them with
 
 * ``msac-opt``, ``direct`` (and ``msac``): TrifocalCalib through
-  :func:`colmap_trifocal.intrinsics.calibrate.calibrate_contents_methods` (the trifocal
+  :func:`colmap_trifocal.intrinsics.api.calibrate_contents_methods` (the trifocal
   variants of a run share their focal search and tensors);
 * ``fundamental``: the Mendonça–Cipolla baseline on F re-fitted from the matches;
 * ``ba-floor``: a bundle adjustment of intrinsics, poses and points started from
@@ -44,11 +44,7 @@ from ..common.bundle_adjustment import bundle_adjustment_options
 from ..common.errors import CalibrationError
 from ..common.log import keep_colmap_quiet
 from ..database.snapshot import DatabaseContents
-from ..intrinsics.calibrate import (
-    METHODS,
-    CalibrationOptions,
-    calibrate_contents_methods,
-)
+from ..intrinsics.api import METHODS, CalibrationOptions, calibrate_contents_methods
 from ..intrinsics.results import PARAMETER_NAMES
 from ..reconstruction.mapping import camera_intrinsics
 from ..synthetic.database import CAMERA_ID, scene_contents

@@ -17,7 +17,7 @@ from ..common.errors import CalibrationError
 from ..database.from_reconstruction import MODEL_FILES
 from ..database.snapshot import DatabaseContents
 from ..database.writing import check_writable
-from .calibrate import (
+from .api import (
     add_read_seconds,
     calibrate_groups,
     read_contents,

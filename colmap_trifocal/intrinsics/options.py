@@ -21,9 +21,7 @@ from ..database.cameras import (
 from ..geometry.tensor_estimation import (
     TensorEstimationOptions,
 )
-from .selfcalibration import (
-    MSAC_TAU,
-)
+from .solve.constraints import MSAC_TAU
 
 METHODS = ("msac-opt", "msac", "direct", "fundamental")
 

@@ -23,7 +23,7 @@ import pycolmap
 from ..common.errors import CalibrationError
 from ..database.cameras import CameraInfo
 from ..geometry.tensor_estimation import TripletTensor
-from .parametrization import PARAMETER_NAMES
+from .solve.parametrization import PARAMETER_NAMES
 
 __all__ = [
     "PARAMETER_NAMES",

@@ -44,11 +44,7 @@ from ..database.shared_cameras import merge_group_cameras
 from ..database.snapshot import read_database
 from ..database.sqlite_files import copy_database
 from ..database.writing import write_intrinsics
-from ..intrinsics.calibrate import (
-    CalibrationOptions,
-    calibrate_contents,
-    updated_cameras,
-)
+from ..intrinsics.api import CalibrationOptions, calibrate_contents, updated_cameras
 from ..intrinsics.results import CameraCalibration, apply_cameras
 from .images import IMAGE_SUFFIXES, ImageListing, list_images
 from .mapping import (

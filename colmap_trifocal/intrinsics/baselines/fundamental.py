@@ -78,8 +78,8 @@ from scipy.optimize import least_squares
 from colmap_trifocal.common.errors import CalibrationError
 from colmap_trifocal.common.log import logger
 
-from .camera_input import CameraInput
-from .results import PARAMETER_NAMES, CameraCalibration
+from ..inputs.camera_input import CameraInput
+from ..results import PARAMETER_NAMES, CameraCalibration
 
 __all__ = [
     "ROBUST_F_SCALE",

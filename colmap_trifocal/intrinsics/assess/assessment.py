@@ -12,22 +12,22 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..database.cameras import PINHOLE_MODELS
-from ..geometry.tensor_estimation import TripletTensor
-from .camera_input import CameraInput
-from .diagnosis import diagnose
-from .focal_search import FocalSearchResult
-from .lens_distortion import LensDistortion
-from .parametrization import FreeParameters
-from .polish import Polished
-from .results import PARAMETER_NAMES, CameraCalibration, TripletReport, finite_or_none
-from .selfcalibration import (
+from ...database.cameras import PINHOLE_MODELS
+from ...geometry.tensor_estimation import TripletTensor
+from ..inputs.camera_input import CameraInput
+from ..lens.distortion import LensDistortion
+from ..polish.stage import Polished
+from ..results import PARAMETER_NAMES, CameraCalibration, TripletReport, finite_or_none
+from ..solve.constraints import (
     ConstraintSolution,
     FallbackSolution,
     fold_focal_sign,
     theta_to_intrinsics,
 )
-from .start_candidates import StartCandidate
+from ..solve.parametrization import FreeParameters
+from ..start.candidates import StartCandidate
+from ..start.focal_search import FocalSearchResult
+from .diagnosis import diagnose
 
 _SOURCE_WORDS = {"prior": "the prior", "focal-search": "the focal search's estimate"}
 

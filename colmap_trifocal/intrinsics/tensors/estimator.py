@@ -23,14 +23,14 @@ from functools import partial
 
 import numpy as np
 
-from ..common.errors import CalibrationError
-from ..common.log import logger
-from ..common.parallel import map_jobs
-from ..geometry.tensor_estimation import TripletFit, TripletTensor, fit_triplet
-from ..geometry.trifocal import intrinsics_matrix
-from .options import CalibrationOptions
-from .selfcalibration import ConstraintProblem, intrinsics_to_theta
-from .triplet_selection import CameraTracks
+from ...common.errors import CalibrationError
+from ...common.log import logger
+from ...common.parallel import map_jobs
+from ...geometry.tensor_estimation import TripletFit, TripletTensor, fit_triplet
+from ...geometry.trifocal import intrinsics_matrix
+from ..inputs.triplet_selection import CameraTracks
+from ..options import CalibrationOptions
+from ..solve.constraints import ConstraintProblem, intrinsics_to_theta
 
 #: Refinement starts per triplet over one camera's calibration: a restart, another
 #: start or second starts are run only while they fit (the first start always runs).
@@ -89,6 +89,11 @@ class TensorEstimator:
     def can_afford(self, starts: int) -> bool:
         """Whether ``starts`` more refinement starts stay within the budget."""
         return self.starts_used + starts <= self.budget
+
+    def charge(self, starts: int) -> None:
+        """Count ``starts`` refinement starts run for this camera by another estimator
+        (on the lens search's warped tracks) in this one's budget: one budget per camera."""
+        self.starts_used += starts
 
     def at(self, start: np.ndarray, previous: TensorSet | None = None) -> TensorSet:
         """Tensors normalised by ``start``: those of ``previous`` that agree with

@@ -53,17 +53,17 @@ import cv2
 import numpy as np
 import pycolmap
 
-from ..common.bundle_adjustment import bundle_adjustment_options
-from ..common.log import keep_colmap_quiet
-from ..common.parallel import map_jobs
-from ..common.sampling import evenly_spaced
-from ..database.cameras import CameraInfo
-from ..geometry.projective_ba import refine_triplet
-from ..geometry.tensor_estimation import TripletTensor
-from ..geometry.trifocal import intrinsics_matrix
-from .bundle_information import reduced_information
-from .parametrization import FreeParameters
-from .uncertainty import jackknife_covariance, jackknife_replicates
+from ...common.bundle_adjustment import bundle_adjustment_options
+from ...common.log import keep_colmap_quiet
+from ...common.parallel import map_jobs
+from ...common.sampling import evenly_spaced
+from ...database.cameras import CameraInfo
+from ...geometry.projective_ba import refine_triplet
+from ...geometry.tensor_estimation import TripletTensor
+from ...geometry.trifocal import intrinsics_matrix
+from ..solve.parametrization import FreeParameters
+from ..solve.uncertainty import jackknife_covariance, jackknife_replicates
+from .information import reduced_information
 
 _CAMERA_ID = 1
 #: Ceres tolerances: the polish should reach the optimum, not COLMAP's early stop.

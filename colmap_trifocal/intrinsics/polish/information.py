@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry.projective_ba import gauge_free_inverse, inverse_3x3
+from ...geometry.projective_ba import gauge_free_inverse, inverse_3x3
 
 
 def reduced_information(

@@ -11,9 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..common.errors import CalibrationError
-from ..common.log import logger
-from ..geometry.tracks import (
+from ...common.errors import CalibrationError
+from ...common.log import logger
+from ...geometry.motion import moves_forward
+from ...geometry.tracks import (
     MatchGraph,
     Triplet,
     is_sequence,
@@ -21,9 +22,8 @@ from ..geometry.tracks import (
     select_sequence_triplets,
     select_triplets,
 )
+from ..options import CalibrationOptions
 from .camera_input import CameraInput
-from .diagnosis import moves_forward
-from .options import CalibrationOptions
 
 
 @dataclass

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..options import RESTART_THRESHOLD, CalibrationOptions
+from ..solve.constraints import FallbackSolution, fold_focal_sign, theta_to_intrinsics
+from ..solve.observability import FALLBACK_FACTOR, default_held_std
 from .focal_search import FocalSearchResult
-from .observability import FALLBACK_FACTOR, default_held_std
-from .options import RESTART_THRESHOLD, CalibrationOptions
-from .selfcalibration import FallbackSolution, fold_focal_sign, theta_to_intrinsics
 
 #: Other starts :func:`other_starts` offers at most (besides the first).
 MAX_OTHER_STARTS = 3

@@ -29,9 +29,7 @@ from ..common.errors import CalibrationError
 from ..common.log import logger
 from ..common.parallel import single_threaded_libraries
 from ..database.camera_groups import CameraGroup, group_cameras
-from ..database.cameras import (
-    CameraInfo,
-)
+from ..database.cameras import CameraInfo
 from ..database.from_reconstruction import (
     contents_from_reconstruction,
     grouping_cameras,
@@ -40,7 +38,6 @@ from ..database.from_reconstruction import (
 )
 from ..database.snapshot import DatabaseContents, read_database
 from ..database.writing import write_intrinsics
-from .camera_calibration import calibrate_camera
 from .options import (
     METHODS,
     CalibrationOptions,
@@ -49,6 +46,7 @@ from .options import (
     parse_prior,
     start_source,
 )
+from .pipeline import calibrate_camera
 from .results import CameraCalibration, GroupCalibration, SkippedGroup
 
 #: The public API (``colmap_trifocal.__all__``) and the names the command line takes from here.

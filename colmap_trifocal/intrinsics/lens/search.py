@@ -44,9 +44,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ..common.parallel import map_jobs
-from ..common.sampling import evenly_spaced
-from .focal_search import FocalSearchResult, search_focal
+from ...common.parallel import map_jobs
+from ...common.sampling import evenly_spaced
+from ..start.focal_search import FocalSearchResult, search_focal
 
 #: Division parameters searched: pincushion (+0.2) to a strong barrel (−0.8: a
 #: corner's radius 1 / (1 − 0.8) = 5× shorter than its undistorted one; a 100° lens

@@ -11,11 +11,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..common.errors import CalibrationError
-from ..common.log import logger
-from ..database.cameras import CameraInfo, check_supported, undistort_to_pinhole
-from ..database.snapshot import DatabaseContents
-from .options import (
+from ...common.errors import CalibrationError
+from ...common.log import logger
+from ...database.cameras import CameraInfo, check_supported, undistort_to_pinhole
+from ...database.snapshot import DatabaseContents
+from ..options import (
     CalibrationOptions,
     check_camera_values,
     check_prior,

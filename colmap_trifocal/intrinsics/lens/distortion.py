@@ -36,12 +36,10 @@ import numpy as np
 import pycolmap
 from scipy.stats import chi2
 
-from ..common.log import keep_colmap_quiet
-from ..database.cameras import CameraInfo
-from ..geometry.tensor_estimation import TripletTensor
-from .bundle_information import reduced_information
-from .parametrization import FreeParameters
-from .triplet_bundle import (
+from ...common.log import keep_colmap_quiet
+from ...database.cameras import CameraInfo
+from ...geometry.tensor_estimation import TripletTensor
+from ..polish.bundle import (
     _FUNCTION_TOLERANCE,
     _inlier_pixels,
     _one_step_jackknife_std,
@@ -52,6 +50,8 @@ from .triplet_bundle import (
     observed_tracks,
     pycolmap_camera_setup,
 )
+from ..polish.information import reduced_information
+from ..solve.parametrization import FreeParameters
 
 #: Probability that the test finds distortion in an undistorted lens (χ² tail): low
 #: power costs more than a false alarm, whose joint estimate is still unbiased and

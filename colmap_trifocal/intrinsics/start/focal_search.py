@@ -33,9 +33,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..common.parallel import map_jobs
-from ..geometry.tensor_estimation import calibrated_hypothesis, transfer_errors
-from ..geometry.trifocal import intrinsics_matrix
+from ...common.parallel import map_jobs
+from ...geometry.tensor_estimation import calibrated_hypothesis, transfer_errors
+from ...geometry.trifocal import intrinsics_matrix
 
 #: Fields of view searched, degrees across the longer image side: from a long
 #: telephoto (5°, f = 11.4 · max(w, h)) to a fisheye-like wide angle (150°,

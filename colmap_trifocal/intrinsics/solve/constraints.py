@@ -46,8 +46,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..geometry.tensor_estimation import TripletTensor
-from ..geometry.trifocal import (
+from ...geometry.tensor_estimation import TripletTensor
+from ...geometry.trifocal import (
     CONSTRAINT_RANK,
     calibrate_tensor,
     normalize_tensor,

@@ -1,0 +1,105 @@
+"""The lens search's warp applied to a camera's input, and what the route tells.
+
+Where most tensors disagree at the first start on a camera whose stored model has
+radial distortion but holds none (COLMAP's default ``SIMPLE_RADIAL``), the lens search
+(:mod:`.search`) looks for a radial warp (division or polynomial). This module says
+when the search applies (:func:`lens_search_applies`), runs it with the camera's seed
+(:func:`find_warp`), warps the keypoints and tracks with a warp (:func:`warped_input`),
+gives the stored model's distortion nearest a warp for the lens stage to start from
+(:func:`distortion_start`), and words the diagnosis where the raw tracks are bent but
+no warp made the tensors agree (:func:`bent_tracks_finding`). The pipeline
+(:mod:`..pipeline`) runs the warped attempts. Pixels in COLMAP's convention (the
+centre of the top-left pixel at (0.5, 0.5)).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...common.log import logger
+from ...database.cameras import CameraInfo
+from ..inputs.camera_input import CameraInput
+from ..inputs.triplet_selection import CameraTracks
+from ..options import CalibrationOptions
+from .distortion import distortion_model
+from .search import LensSearchResult, polynomial_start, search_lens
+
+#: Radial terms (k1[, k2]) of the stored models the lens search can start, COLMAP's
+#: order (they come first among the model's distortion parameters).
+RADIAL_PARAMETERS = {"SIMPLE_RADIAL": 1, "RADIAL": 2, "OPENCV": 2}
+
+
+def lens_search_applies(camera: CameraInfo, method: str, options: CalibrationOptions) -> bool:
+    """Whether the lens search may run: the polished variant, a focal search, and a
+    stored model with radial distortion that holds none yet (a pinhole stays pinhole)."""
+    return (
+        method == "msac-opt"
+        and options.triplet_bundle
+        and options.focal_search
+        and distortion_model(camera) == camera.model
+        and camera.model in RADIAL_PARAMETERS
+    )
+
+
+def find_warp(
+    data: CameraInput, tracks: CameraTracks, options: CalibrationOptions
+) -> LensSearchResult:
+    """The lens search over the first ``options.search_triplets`` triplets, seeded by the
+    camera's seed sequence (the key after the triplets' and the focal search's)."""
+    camera = data.camera
+    rng = np.random.default_rng(
+        np.random.SeedSequence(options.seed, spawn_key=(len(tracks.triplets) + 1,))
+    )
+    found = search_lens(
+        tracks.tracks[: options.search_triplets],
+        data.prior,
+        rng,
+        options.tensor.inlier_threshold_px,
+        (camera.width, camera.height),
+        options.workers,
+    )
+    logger.info(
+        "camera %d: lens search: %s, %.1f px (the unwarped tracks cost %.1fx; %s)",
+        camera.camera_id,
+        found.describe(),
+        found.focal.focal,
+        found.ratio,
+        "used" if found.clear else "not clear: not used",
+    )
+    return found
+
+
+def warped_input(
+    data: CameraInput, tracks: CameraTracks, warp: LensSearchResult
+) -> tuple[CameraInput, CameraTracks]:
+    """The camera's keypoints and tracks undistorted by ``warp`` (pixels)."""
+    keypoints = {image: warp.undistort(k) for image, k in data.keypoints.items()}
+    warped = CameraTracks(
+        tracks.triplets, [warp.undistort(x) for x in tracks.tracks], tracks.sequence
+    )
+    return CameraInput(data.camera, data.prior, keypoints, data.matches), warped
+
+
+def distortion_start(
+    camera: CameraInfo,
+    warp: LensSearchResult,
+    raw: dict[tuple[int, int, int], np.ndarray],
+    intrinsics: np.ndarray,
+) -> np.ndarray:
+    """The stored model's distortion (COLMAP's order) nearest the warp at ``intrinsics``
+    (pixels): its radial terms fitted out to the farthest raw track, the rest 0."""
+    farthest = max(float(np.max(np.linalg.norm(x - warp.centre, axis=-1))) for x in raw.values())
+    radial = polynomial_start(warp, intrinsics, RADIAL_PARAMETERS[camera.model], farthest)
+    start = np.zeros(len(camera.distortion))
+    start[: len(radial)] = radial
+    return start
+
+
+def bent_tracks_finding(search: LensSearchResult) -> str:
+    """The diagnosis where the raw tracks are bent and no warp was used."""
+    return (
+        f"unmodelled radial distortion (a {search.describe()} warp cuts the raw "
+        f"tracks' epipolar error {search.ratio:.1f}×, but the tensors agree on "
+        "none of the warps: the lens is not a one-parameter lens, or the scene has "
+        "too little depth relief for what that leaves)"
+    )

@@ -1,0 +1,351 @@
+"""One physical camera, stage by stage: the stage list.
+
+    data     = camera_input(contents, camera, images)        # inputs: prior, keypoints
+    tracks   = select_camera_triplets(data, images)           # inputs: triplets, tracks
+    search   = search_focal(tracks, prior)                    # start: the focal search
+    start    = first_start(prior, search)                     # start
+    per method (msac-opt, msac, direct):
+      [lens]   where the first tensors disagree on a radial camera that stores no
+               distortion: find_warp, and attempts on the warped tracks per warp
+      first    = attempt(start)                               # tensors + solve
+      [lens]   where most tensors still disagree: the same
+      best     = restarted(first); best_attempt(best)         # restart, other starts
+      best     = held_where_nothing_agrees(best)              # hold
+      polished = polish(best, tracks)                         # polish (msac-opt)
+      lens     = estimate_distortion(polished, raw tracks)    # distortion (msac-opt)
+      result   = assess(polished, lens, best)                 # assessment
+
+Each stage is a function of its own module with a typed input and output, called
+from here only; the seconds of each go into the result
+(:class:`..common.timing.StageClock`; the distortion stage counts as ``polish``).
+Intrinsics in pixels, COLMAP's pixel convention (the centre of the top-left pixel at
+(0.5, 0.5)).
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..common.log import logger
+from ..common.timing import StageClock
+from ..database.cameras import CameraInfo
+from ..database.snapshot import DatabaseContents
+from .assess.assessment import assess
+from .baselines.fundamental import calibrate_fundamental
+from .inputs.camera_input import CameraInput, camera_input
+from .inputs.triplet_selection import CameraTracks, select_camera_triplets
+from .lens.distortion import LensDistortion, LensStart, estimate_distortion
+from .lens.search import LensSearchResult
+from .lens.warp import (
+    bent_tracks_finding,
+    distortion_start,
+    find_warp,
+    lens_search_applies,
+    warped_input,
+)
+from .options import CalibrationOptions
+from .polish.stage import Polished, polish
+from .results import CameraCalibration
+from .start.candidates import first_start
+from .start.focal_search import FocalSearchResult, search_focal
+from .tensors.attempts import (
+    Attempt,
+    AttemptInputs,
+    attempt,
+    best_attempt,
+    checked_estimate,
+    consensus,
+    first_tensors_disagree,
+    held_where_nothing_agrees,
+    restarted,
+)
+from .tensors.estimator import TensorEstimator
+
+
+@dataclass
+class Finished:
+    """The chosen attempt (its values held where nothing agrees), its polish and the
+    lens stage (None where it does not apply)."""
+
+    attempt: Attempt
+    polished: Polished
+    lens: LensDistortion | None
+
+
+@dataclass
+class Warped:
+    """A run on the lens search's warped tracks: its inputs (warped), the warp's focal
+    search, and what it finished with (the lens stage having adjusted the stored
+    model's distortion from the raw tracks)."""
+
+    inputs: AttemptInputs
+    search: FocalSearchResult
+    finished: Finished
+
+
+@dataclass
+class LensRoute:
+    """What the lens-search route gave: the run on its warped tracks (None where not
+    used), the refinement starts it spent, and the search (None where it did not run)."""
+
+    warped: Warped | None
+    spent: int
+    search: LensSearchResult | None
+
+    @property
+    def bent(self) -> bool:
+        """The search found the raw tracks clearly bent (a warp costs them much less,
+        :attr:`.LensSearchResult.clear`)."""
+        return self.search is not None and self.search.clear
+
+    def finding(self) -> str | None:
+        """The diagnosis where the tracks are bent and no warp was used, else None."""
+        if self.search is None or not self.bent or self.warped is not None:
+            return None
+        return bent_tracks_finding(self.search)
+
+
+NO_ROUTE = LensRoute(None, 0, None)
+
+
+def calibrate_camera(
+    contents: DatabaseContents,
+    camera: CameraInfo,
+    image_ids: list[int],
+    options: CalibrationOptions,
+    methods: tuple[str, ...],
+) -> dict[str, CameraCalibration]:
+    """Estimate one camera from the triplets of ``image_ids``, with each of ``methods``.
+
+    ``camera`` gives the model, size and prior; the images may belong to several camera
+    ids of one group, and each image's keypoints are undistorted with its own camera.
+    The trifocal methods share the tracks, the focal search and the tensors; each
+    result's ``stage_seconds`` holds the shared stages and its own.
+    """
+    clock = StageClock()
+    with clock("read"):
+        data = camera_input(contents, camera, image_ids, options)
+    read_clock = copy.deepcopy(clock)
+    results: dict[str, CameraCalibration] = {}
+    trifocal = [m for m in methods if m != "fundamental"]
+    if trifocal:
+        with clock("tracks"):
+            tracks = select_camera_triplets(data, image_ids, options)
+        seeds = np.random.SeedSequence(options.seed).spawn(len(tracks.triplets) + 1)
+        with clock("focal_search"):
+            search = _search_focal(data, tracks, seeds[-1], options)
+        estimator = TensorEstimator(tracks, camera.camera_id, options, seeds[:-1])
+        for method in trifocal:
+            method_clock = copy.deepcopy(clock)
+            results[method] = _calibrate_method(
+                data, tracks, search, estimator, method, options, method_clock
+            )
+    if "fundamental" in methods:
+        with read_clock("solve"):
+            results["fundamental"] = calibrate_fundamental(data)
+        results["fundamental"].seconds = read_clock.total
+        results["fundamental"].stage_seconds = read_clock.as_dict()
+    return {method: results[method] for method in methods}
+
+
+def _search_focal(
+    data: CameraInput,
+    tracks: CameraTracks,
+    seed: np.random.SeedSequence,
+    options: CalibrationOptions,
+) -> FocalSearchResult | None:
+    """The focal search over the first ``options.search_triplets`` triplets (None: off)."""
+    if not options.focal_search:
+        return None
+    camera = data.camera
+    found = search_focal(
+        tracks.tracks[: options.search_triplets],
+        data.prior,
+        np.random.default_rng(seed),
+        options.tensor.inlier_threshold_px,
+        workers=options.workers,
+        progress=options.progress,
+        image_size=(camera.width, camera.height),
+    )
+    logger.info(
+        "camera %d: focal search: %.1f px (std %.1f %%, %s, %s)",
+        camera.camera_id,
+        found.focal,
+        100 * found.relative_std,
+        "decisive" if found.decisive else "not decisive",
+        "used" if found.improves_on_start else "the start explains the tracks as well: kept",
+    )
+    return found
+
+
+def _calibrate_method(
+    data: CameraInput,
+    tracks: CameraTracks,
+    search: FocalSearchResult | None,
+    estimator: TensorEstimator,
+    method: str,
+    options: CalibrationOptions,
+    clock: StageClock,
+) -> CameraCalibration:
+    """One trifocal variant: the start candidates, the polish and the assessment; where
+    most tensors disagree at the first start on a camera that may hold radial
+    distortion, the lens search's warp (:mod:`.lens.warp`) and everything again on
+    the warped tracks first."""
+    camera = data.camera
+    inputs = AttemptInputs(data, tracks, estimator, method, options, clock)
+    candidate = first_start(data.prior, search)
+    lens_applies = lens_search_applies(camera, method, options)
+    route = NO_ROUTE
+    if lens_applies and first_tensors_disagree(inputs, candidate, options.search_triplets):
+        # Most of the first triplets disagree: the lens search, before the other tensors.
+        route = _through_lens_search(inputs)
+    first = None
+    if route.warped is None:
+        # The restart waits for the lens search's verdict: on a lens it would refine
+        # tensors the warp is about to replace.
+        first = attempt(inputs, candidate, restart=False)
+        if route.search is None and not first.majority_agrees and lens_applies:
+            route = _through_lens_search(inputs)
+    # One budget for the camera's tensor work, the warped tracks' included.
+    estimator.charge(route.spent)
+    if route.warped is not None:
+        inputs, search, finished = route.warped.inputs, route.warped.search, route.warped.finished
+    else:
+        assert first is not None
+        best = restarted(inputs, first)
+        if not route.bent:
+            best = best_attempt(inputs, best, search)
+        # Else the raw tracks are bent and no warp made the tensors agree: other
+        # focal lengths cannot either (the disagreement is the lens's, not the start's).
+        finished = _finish(inputs, best)
+    # The lens is named as the cause only where the raw tracks' tensors disagreed too.
+    finding = None if first is None or first.majority_agrees else route.finding()
+    best = finished.attempt
+    with clock("assessment"):
+        result = assess(
+            inputs.data,
+            method,
+            best.candidate,
+            best.tensors.start,
+            best.tensors.tensors,
+            best.fallback,
+            finished.polished,
+            search,
+            inputs.tracks.tracks,
+            finished.lens,
+            options.workers,
+            finding,
+        )
+    result.seconds = clock.total
+    result.stage_seconds = clock.as_dict()
+    result.tensor_starts = estimator.starts_used
+    logger.info("camera %d: %s", camera.camera_id, clock.summary())
+    return result
+
+
+def _finish(
+    inputs: AttemptInputs,
+    best: Attempt,
+    lens_start: Callable[[np.ndarray], LensStart] | None = None,
+) -> Finished:
+    """The estimate (every value held where nothing agrees), its polish and the lens
+    stage; ``lens_start`` (the estimate -> raw tracks and a distortion to start from)
+    where the tracks were warped, which the lens stage alone adjusts (no polish)."""
+    camera, options, method = inputs.data.camera, inputs.options, inputs.method
+    with inputs.clock("solve"):
+        best = held_where_nothing_agrees(inputs, best)
+        start, fallback = best.tensors.start, best.fallback
+        estimate = checked_estimate(best, camera.camera_id, method)
+    with inputs.clock("polish"):
+        polished = Polished(estimate, fallback.relative_std, best.agreeing, None)
+        if method != "msac-opt" or not options.triplet_bundle:
+            return Finished(best, polished, None)
+        by_images = inputs.tracks.by_images()
+        if lens_start is None:
+            # On warped tracks the lens stage adjusts K with the distortion from the
+            # raw tracks: polishing K on the warped ones first would only move its start.
+            polished = polish(
+                best.tensors.tensors,
+                by_images,
+                start,
+                estimate,
+                fallback,
+                best.agreeing,
+                (camera.width, camera.height),
+                options.tau,
+                camera.camera_id,
+                options.workers,
+            )
+        lens = estimate_distortion(
+            best.tensors.tensors,
+            by_images,
+            start,
+            polished.intrinsics,
+            fallback.free_parameters,
+            camera,
+            options.tau,
+            fallback.solution.inlier_tensors,
+            options.workers,
+            None if lens_start is None else lens_start(polished.intrinsics),
+        )
+    return Finished(best, polished, lens)
+
+
+def _through_lens_search(raw: AttemptInputs) -> LensRoute:
+    """The run on the lens search's warped tracks; its ``warped`` None where the search
+    finds no clear warp, the tensors agree on none of its warps
+    (:meth:`.LensSearchResult.candidates`), or the lens stage does not confirm the
+    distortion.
+
+    One start per warp: where its tensors do not agree, the next warp, then the
+    unwarped run as it would have gone on. Where they agree, no second starts and no
+    restart: the lens stage adjusts K from the raw tracks, so the warped tensors only
+    choose its triplets and its start.
+    """
+    data, tracks, options = raw.data, raw.tracks, raw.options
+    camera = data.camera
+    with raw.clock("lens_search"):
+        found = find_warp(data, tracks, options)
+    if not found.clear:
+        return LensRoute(None, 0, found)
+    spent = 0
+    for family, parameter in found.candidates():
+        if not raw.estimator.can_afford(spent + len(tracks.triplets)):
+            return LensRoute(None, spent, found)
+        warp = replace(found, family=family, parameter=parameter)
+        warped_data, warped_tracks = warped_input(data, tracks, warp)
+        estimator = TensorEstimator(warped_tracks, camera.camera_id, options, raw.estimator.seeds)
+        inputs = replace(raw, data=warped_data, tracks=warped_tracks, estimator=estimator)
+        best = attempt(inputs, first_start(data.prior, warp.focal), restart=False, complete=False)
+        if not consensus(best.fallback):
+            best = restarted(inputs, best)
+        spent += estimator.starts_used
+        if consensus(best.fallback):
+            break
+        logger.info(
+            "camera %d: %d of %d tensors agree on the tracks warped with %s",
+            camera.camera_id,
+            best.agreeing,
+            len(best.tensors.tensors),
+            warp.describe(),
+        )
+    else:
+        return LensRoute(None, spent, found)
+    by_images = tracks.by_images()
+    finished = _finish(
+        inputs,
+        best,
+        lambda intrinsics: LensStart(
+            by_images, distortion_start(camera, warp, by_images, intrinsics)
+        ),
+    )
+    if finished.lens is None or not finished.lens.present:
+        logger.info(
+            "camera %d: the lens adjustment did not confirm the warp: not used", camera.camera_id
+        )
+        return LensRoute(None, spent, found)
+    return LensRoute(Warped(inputs, warp.focal, finished), spent, found)
