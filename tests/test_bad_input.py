@@ -1886,7 +1886,7 @@ def test_numerical_warnings_go_to_the_log_not_stderr(
     """A RuntimeWarning raised during a run (here a real float overflow in numpy, injected
     after the database is read) is logged (-v shows it); stderr stays empty (issue 15,
     item 8: such lines came before the ``error:`` line)."""
-    from colmap_trifocal.intrinsics import batch as batch_module  # calibrate's calibrate_path
+    from colmap_trifocal.cli import batch_input as batch_module
 
     def overflow() -> None:
         with np.errstate(over="warn"):

@@ -70,7 +70,7 @@ def expand_inputs(arguments: list[Path]) -> tuple[list[Path], bool]:
 def run_batch(args: argparse.Namespace, paths: list[Path], options: CalibrationOptions) -> int:
     """Calibrate every input, writing its lines as it finishes; the exit status."""
     from ..evaluation.runner import completed_tasks
-    from ..intrinsics.batch import InputTask, calibrate_input
+    from .batch_input import InputTask, calibrate_input
 
     _check_batch_arguments(args, paths)
     to_stdout = args.json is None or is_stdout(args.json)
@@ -98,7 +98,7 @@ def run_batch(args: argparse.Namespace, paths: list[Path], options: CalibrationO
 def _check_batch_arguments(args: argparse.Namespace, paths: list[Path]) -> None:
     """Refuse the flags that take one database, ``--write`` for a model folder, and a
     ``--json`` that cannot be written or is one of the inputs (or their files)."""
-    from ..intrinsics.batch import is_model_folder
+    from .batch_input import is_model_folder
 
     single = model_copy_flags(args)
     if single:

@@ -127,8 +127,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """One database, one model folder, or many inputs (:mod:`.batch`); the exit status."""
     from ..intrinsics.api import check_options
-    from ..intrinsics.batch import check_input_path, is_model_folder
     from .batch import expand_inputs, run_batch
+    from .batch_input import check_input_path, is_model_folder
 
     options = _options(args)
     if args.max_triplets < 1:
@@ -149,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
 def _run_database(args: argparse.Namespace, database: Path, options: CalibrationOptions) -> int:
     """Check everything, calibrate, print the table, write the outputs; exit status 0."""
     from ..intrinsics.api import updated_cameras, write_calibrations
-    from ..intrinsics.batch import calibrate_path
+    from .batch_input import calibrate_path
 
     model = _check_arguments(args, database)
     json_to_stdout = args.json is not None and is_stdout(args.json)

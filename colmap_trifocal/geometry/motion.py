@@ -84,4 +84,4 @@ def _relative_motion_job(
 
 def normalised_coordinates(pixels: np.ndarray, K_inv: np.ndarray) -> np.ndarray:
     """Pixels (n, 2) in normalised camera coordinates (n, 2)."""
-    return pixels @ K_inv[:2, :2].T + K_inv[:2, 2]
+    return np.asarray(pixels @ K_inv[:2, :2].T + K_inv[:2, 2])

@@ -66,7 +66,7 @@ def _transfer(H: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Inhomogeneous images (n, 2) of points (n, 2) under a homography H."""
     y = _homogeneous(points) @ H.T
     with np.errstate(divide="ignore", invalid="ignore"):
-        return y[:, :2] / y[:, 2:3]
+        return np.asarray(y[:, :2] / y[:, 2:3])
 
 
 def plane_homography(
@@ -156,7 +156,7 @@ def uniform_ransac_homography(
 def transfer_distances(H: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
     """Distances (n,) of points x2 from the images of x1 under H (inf where undefined)."""
     distance = np.linalg.norm(_transfer(H, x1) - x2, axis=1)
-    return np.nan_to_num(distance, nan=np.inf)
+    return np.asarray(np.nan_to_num(distance, nan=np.inf))
 
 
 def dominant_plane(x: np.ndarray, threshold: float) -> DominantPlane | None:
@@ -228,7 +228,7 @@ def _line_distances(
     norm = np.linalg.norm(lines[..., :2], axis=2)
     with np.errstate(divide="ignore", invalid="ignore"):
         distance = np.abs(np.einsum("mna,na->mn", lines, _homogeneous(xj))) / norm
-    return np.nan_to_num(distance, nan=np.inf)
+    return np.asarray(np.nan_to_num(distance, nan=np.inf))
 
 
 def _depths(x1: np.ndarray, xj: np.ndarray, H: np.ndarray, e: np.ndarray) -> np.ndarray:
@@ -236,7 +236,9 @@ def _depths(x1: np.ndarray, xj: np.ndarray, H: np.ndarray, e: np.ndarray) -> np.
     p = _homogeneous(xj)
     c = np.cross(p, _homogeneous(x1) @ H.T)
     d = np.cross(p, np.broadcast_to(e, p.shape))
-    return -np.einsum("na,na->n", c, d) / np.maximum(np.einsum("na,na->n", d, d), 1e-300)
+    return np.asarray(
+        -np.einsum("na,na->n", c, d) / np.maximum(np.einsum("na,na->n", d, d), 1e-300)
+    )
 
 
 def plane_parallax_cameras(

@@ -244,7 +244,7 @@ class _NormalEquations:
 
 def _contract_points(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """Σ_n A_n B_nᵀ for stacks (n, 24, 3) (one BLAS call)."""
-    return A.transpose(1, 0, 2).reshape(24, -1) @ B.transpose(1, 0, 2).reshape(24, -1).T
+    return np.asarray(A.transpose(1, 0, 2).reshape(24, -1) @ B.transpose(1, 0, 2).reshape(24, -1).T)
 
 
 def inverse_3x3(M: np.ndarray) -> np.ndarray:
@@ -261,7 +261,7 @@ def inverse_3x3(M: np.ndarray) -> np.ndarray:
     out[:, 2, 0], out[:, 2, 1], out[:, 2, 2] = d * h - e * g, b * g - a * h, a * e - b * d
     determinant = a * out[:, 0, 0] + b * out[:, 1, 0] + c * out[:, 2, 0]
     with np.errstate(divide="ignore", invalid="ignore"):
-        return out / determinant[:, None, None]
+        return np.asarray(out / determinant[:, None, None])
 
 
 def gauge_free_inverse(S: np.ndarray, gauge_dimension: int = GAUGE_DIMENSION) -> np.ndarray:
@@ -269,4 +269,4 @@ def gauge_free_inverse(S: np.ndarray, gauge_dimension: int = GAUGE_DIMENSION) ->
     directions (the gauge null space)."""
     eigenvalues, eigenvectors = np.linalg.eigh(0.5 * (S + S.T))
     keep = eigenvectors[:, gauge_dimension:]
-    return (keep / eigenvalues[gauge_dimension:]) @ keep.T
+    return np.asarray((keep / eigenvalues[gauge_dimension:]) @ keep.T)

@@ -41,13 +41,15 @@ def tensor_from_cameras(P2: np.ndarray, P3: np.ndarray) -> np.ndarray:
     """
     A, a4 = P2[..., :, :3], P2[..., :, 3]
     B, b4 = P3[..., :, :3], P3[..., :, 3]
-    return np.einsum("...ji,...k->...ijk", A, b4) - np.einsum("...j,...ki->...ijk", a4, B)
+    return np.asarray(
+        np.einsum("...ji,...k->...ijk", A, b4) - np.einsum("...j,...ki->...ijk", a4, B)
+    )
 
 
 def normalize_tensor(T: np.ndarray) -> np.ndarray:
     """Scale each tensor of shape (..., 3, 3, 3) to unit Frobenius norm."""
     norm = np.sqrt(np.einsum("...ijk,...ijk->...", T, T))
-    return T / norm[..., None, None, None]
+    return np.asarray(T / norm[..., None, None, None])
 
 
 def _null_vector(M: np.ndarray) -> np.ndarray:
@@ -95,7 +97,7 @@ def point_line_line_rows(x1: np.ndarray, x2: np.ndarray, x3: np.ndarray) -> np.n
     lines2 = _axis_lines(x2)  # (..., n, 2, 3)
     lines3 = _axis_lines(x3)
     rows = np.einsum("...i,...aj,...bk->...abijk", p1, lines2, lines3)
-    return rows.reshape(x1.shape[:-1] + (4, 27))
+    return np.asarray(rows.reshape(x1.shape[:-1] + (4, 27)))
 
 
 def _axis_lines(x: np.ndarray) -> np.ndarray:

@@ -9,6 +9,7 @@ values' uncertainty counted) and the data actually moved it
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -146,7 +147,7 @@ def parameter_sources(
     return source
 
 
-def search_summary(search: FocalSearchResult | None) -> dict | None:
+def search_summary(search: FocalSearchResult | None) -> dict[str, Any] | None:
     """The focal search's result for the JSON report (pixels; None if not run)."""
     if search is None:
         return None

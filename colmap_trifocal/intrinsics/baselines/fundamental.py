@@ -133,14 +133,14 @@ def _calibration_matrix(theta: np.ndarray) -> np.ndarray:
 def _unit_frobenius(mats: np.ndarray) -> np.ndarray:
     """Scale every matrix of an ``(n, 3, 3)`` stack to unit Frobenius norm."""
     norms = np.linalg.norm(mats.reshape(len(mats), -1), axis=1)
-    return mats / norms[:, None, None]
+    return np.asarray(mats / norms[:, None, None])
 
 
 def _pair_costs_from_sigmas(s1: np.ndarray, s2: np.ndarray, form: CostForm) -> np.ndarray:
     """Per-pair cost from the two largest singular values (``s1 >= s2``)."""
     if form == "ratio":
-        return (s1 - s2) / s2
-    return (s1 - s2) / (s1 + s2)
+        return np.asarray((s1 - s2) / s2)
+    return np.asarray((s1 - s2) / (s1 + s2))
 
 
 def essential_cost(

@@ -31,6 +31,7 @@ convention (the centre of the top-left pixel at (0.5, 0.5)).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pycolmap
@@ -134,7 +135,7 @@ class LensDistortion:
         """Whether the tracks show distortion the stored camera does not hold."""
         return self.statistic > self.threshold
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
         """The JSON ``lens_distortion`` report."""
         return {
             "camera_model": self.camera_model,
@@ -480,4 +481,4 @@ def _screen(
         return float((directions.T @ gradient) @ step)
 
     without_k = with_k[:, :-1]
-    return (decrease(with_k) - decrease(without_k)) / variance
+    return float((decrease(with_k) - decrease(without_k)) / variance)

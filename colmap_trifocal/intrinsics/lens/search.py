@@ -40,10 +40,12 @@ Pixels in COLMAP's convention (the centre of the top-left pixel at (0.5, 0.5)).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
 
+from ...common.parabola import parabola_step
 from ...common.parallel import map_jobs
 from ...common.sampling import evenly_spaced
 from ..start.focal_search import FocalSearchResult, search_focal
@@ -141,7 +143,7 @@ def radial_undistort(
     division model's ``c + (x − c) / (1 + λ r²)``, ``r = |x − c| / s``, or the
     polynomial's inverse (s = ``scale``)."""
     offset, magnification = _warp(points, centre, scale, family, parameter)
-    return centre + offset * magnification[..., None]
+    return np.asarray(centre + offset * magnification[..., None])
 
 
 #: Newton steps of the polynomial's inverse (quadratic convergence from r_u = r_d).
@@ -178,7 +180,7 @@ def _polynomial_inverse(distorted: np.ndarray, kappa: float) -> np.ndarray:
         value = undistorted * (1.0 + kappa * undistorted**2) - target
         slope = np.maximum(1.0 + 3.0 * kappa * undistorted**2, 1e-6)
         undistorted = np.clip(undistorted - value / slope, 0.0, fold)
-    return undistorted
+    return np.asarray(undistorted)
 
 
 def _division(
@@ -277,7 +279,7 @@ def _refined_minimum(
     return parameter, _epipolar_cost(pairs, centre, scale, family, parameter)
 
 
-def _epipolar_job(job: tuple) -> float:
+def _epipolar_job(job: tuple[Any, ...]) -> float:
     return _epipolar_cost(*job)
 
 
@@ -328,22 +330,15 @@ def sampson_squared(F: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray
     Fx1, Ftx2 = h1 @ F.T, h2 @ F
     numerator = np.sum(h2 * Fx1, axis=1) ** 2
     denominator = Fx1[:, 0] ** 2 + Fx1[:, 1] ** 2 + Ftx2[:, 0] ** 2 + Ftx2[:, 1] ** 2
-    return numerator / np.maximum(denominator, 1e-300)
+    return np.asarray(numerator / np.maximum(denominator, 1e-300))
 
 
 def _parabola_minimum(x: np.ndarray, y: np.ndarray) -> float:
-    """The vertex of the parabola through three points (x sorted), clipped to their
-    span; the best point where there are fewer or the curve is not convex."""
-    best = float(x[int(np.argmin(y))])
-    if len(x) != 3:
-        return best
-    (x0, x1, x2), (y0, y1, y2) = x, y
-    denominator = (x0 - x1) * (x0 - x2) * (x1 - x2)
-    a = (x2 * (y1 - y0) + x1 * (y0 - y2) + x0 * (y2 - y1)) / denominator
-    b = (x2**2 * (y0 - y1) + x1**2 * (y2 - y0) + x0**2 * (y1 - y2)) / denominator
-    if a <= 0:
-        return best
-    return round(float(np.clip(-b / (2 * a), x0, x2)), 4)
+    """The minimum of the parabola through three evenly spaced points (x sorted),
+    clipped to their span and rounded to 4 decimals; the middle point where the curve
+    is not convex."""
+    step = parabola_step(float(y[0]), float(y[1]), float(y[2]))
+    return round(float(np.clip(x[1] + step * (x[2] - x[1]), x[0], x[2])), 4)
 
 
 def polynomial_start(
@@ -363,4 +358,4 @@ def polynomial_start(
     undistorted = distorted * magnification
     rho = (undistorted / focal) ** 2
     design = np.stack([rho**power for power in range(1, num_parameters + 1)], axis=1)
-    return np.linalg.lstsq(design, distorted / undistorted - 1.0, rcond=None)[0]
+    return np.asarray(np.linalg.lstsq(design, distorted / undistorted - 1.0, rcond=None)[0])

@@ -48,6 +48,7 @@ has no batch call for tracks.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -109,7 +110,7 @@ class TripletBundleResult:
         """(4,) the larger of the covariance's and the jackknife's std, pixels."""
         if self.jackknife_std is None:
             return self.covariance_std
-        return np.maximum(self.covariance_std, self.jackknife_std)
+        return np.asarray(np.maximum(self.covariance_std, self.jackknife_std))
 
 
 def pycolmap_camera_setup(free_parameters: FreeParameters) -> tuple[str, bool, bool] | None:
@@ -207,7 +208,7 @@ def observed_tracks(
     return [o for o in map_jobs(_observed_job, jobs, workers) if o is not None]
 
 
-def _observed_job(job: tuple) -> _Observed | None:
+def _observed_job(job: tuple[Any, ...]) -> _Observed | None:
     index, tensor, tracks, start, max_tracks = job
     pixels = _inlier_pixels(tensor, tracks, max_tracks)
     if pixels.shape[1] <= _PROJECTIVE_PARAMETERS // 3:
@@ -624,7 +625,7 @@ def calibrated_information(
     return [part for part in map_jobs(_information_job, jobs, workers) if part is not None]
 
 
-def _information_job(job: tuple) -> TripletInformation | None:
+def _information_job(job: tuple[Any, ...]) -> TripletInformation | None:
     tensor, tracks, start, intrinsics, radial, max_tracks = job
     pixels = _inlier_pixels(tensor, tracks, max_tracks)
     normalised = (pixels - intrinsics[2:]) / intrinsics[:2]
@@ -667,7 +668,7 @@ def _reduced(information: np.ndarray, free: np.ndarray) -> np.ndarray | None:
     reduced = free.T @ information @ free
     if not np.all(np.isfinite(reduced)) or np.linalg.matrix_rank(reduced) < free.shape[1]:
         return None
-    return reduced
+    return np.asarray(reduced)
 
 
 def _gauss_newton(
@@ -679,7 +680,7 @@ def _gauss_newton(
     reduced = _reduced(information, free)
     if reduced is None:
         return None
-    return intrinsics - free @ np.linalg.solve(reduced, free.T @ gradient)
+    return np.asarray(intrinsics - free @ np.linalg.solve(reduced, free.T @ gradient))
 
 
 def _inlier_pixels(
@@ -748,7 +749,7 @@ def _shared_camera(
     return shared if shared.triplets else None
 
 
-def _cameras_job(job: tuple) -> np.ndarray | None:
+def _cameras_job(job: tuple[Any, ...]) -> np.ndarray | None:
     triplet, start, intrinsics = job
     normalised = (triplet.pixels - intrinsics[2:]) / intrinsics[:2]
     return calibrated_cameras(triplet.tensor, normalised, start, intrinsics)

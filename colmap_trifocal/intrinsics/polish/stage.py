@@ -35,6 +35,7 @@ Intrinsics in pixels; std relative to the focal length (θ units) unless named.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -74,7 +75,7 @@ class Polished:
     intrinsics: np.ndarray
     relative_std: np.ndarray
     agreeing: int
-    summary: dict | None
+    summary: dict[str, Any] | None
 
 
 def polish(

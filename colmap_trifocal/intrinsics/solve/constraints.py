@@ -141,7 +141,7 @@ def whitening_matrices(tensors: list[TripletTensor], theta: np.ndarray) -> np.nd
     eigenvalues, eigenvectors = np.linalg.eigh(0.5 * (sigma_c + np.swapaxes(sigma_c, 1, 2)))
     top_values = np.maximum(eigenvalues[:, -CONSTRAINT_RANK:], 1e-300)
     top_vectors = eigenvectors[:, :, -CONSTRAINT_RANK:]
-    return np.swapaxes(top_vectors, 1, 2) / np.sqrt(top_values)[:, :, None]
+    return np.asarray(np.swapaxes(top_vectors, 1, 2) / np.sqrt(top_values)[:, :, None])
 
 
 @dataclass
@@ -176,11 +176,11 @@ class ConstraintProblem:
         whitening = self.whitening if which is None else self.whitening[which]
         M = theta_to_matrix(theta)[..., None, :, :]
         c = quartic_constraints(calibrate_tensor(tensors, M))
-        return (whitening @ c[..., None])[..., 0]
+        return np.asarray((whitening @ c[..., None])[..., 0])
 
     def norms(self, theta: np.ndarray) -> np.ndarray:
         """‖r_i‖ per tensor (n,) at θ (4,)."""
-        return np.linalg.norm(self.residuals(theta), axis=-1)
+        return np.asarray(np.linalg.norm(self.residuals(theta), axis=-1))
 
     def per_tensor_estimates(self, theta0: np.ndarray, iterations: int = 30) -> np.ndarray:
         """θ_i (n, 4) minimising each tensor's own residuals, all tensors in one batched LM."""
@@ -196,7 +196,7 @@ class ConstraintProblem:
             # Tensor i evaluated at its own parameters values[..., i, :].
             M = theta_to_matrix(parametrization.theta(values))
             c = quartic_constraints(calibrate_tensor(self.tensors, M))
-            return (self.whitening @ c[..., None])[..., 0]
+            return np.asarray((self.whitening @ c[..., None])[..., 0])
 
         r = batch_residuals(free)
         cost = np.einsum("na,na->n", r, r)
@@ -303,7 +303,7 @@ class ConstraintProblem:
         if null.shape[1]:
             projector = np.eye(4) - null @ null.T
             information = projector @ information @ projector
-        return information
+        return np.asarray(information)
 
     def insensitive_directions(self, theta: np.ndarray, which: np.ndarray) -> np.ndarray:
         """Orthonormal directions (4, d) of θ that leave the raw constraints unchanged.
@@ -336,7 +336,7 @@ def _central_differences(function: Callable[[np.ndarray], np.ndarray], x: np.nda
     k = x.shape[-1]
     steps = (_FD_STEP_THETA * np.eye(k)).reshape((k,) + (1,) * (x.ndim - 1) + (k,))
     values = function(np.concatenate([x + steps, x - steps]))
-    return (values[:k] - values[k:]) / (2 * _FD_STEP_THETA)
+    return np.asarray((values[:k] - values[k:]) / (2 * _FD_STEP_THETA))
 
 
 def msac_score(norms: np.ndarray, tau: float = MSAC_TAU) -> float:

@@ -141,18 +141,18 @@ class Parametrization:
 
     @property
     def dimension(self) -> int:
-        return self.matrix.shape[1]
+        return int(self.matrix.shape[1])
 
     def theta(self, free: np.ndarray) -> np.ndarray:
         """θ (..., 4) from free unknowns p (..., k)."""
-        return free @ self.matrix.T + self.offset
+        return np.asarray(free @ self.matrix.T + self.offset)
 
     def free(self, theta: np.ndarray) -> np.ndarray:
         """The p (..., k) whose θ is closest to ``theta`` (..., 4) (exact where θ is
         reachable: tied and held parameters at their values)."""
         pseudo_inverse = np.linalg.pinv(self.matrix) if self.dimension else np.zeros((0, 4))
-        return (theta - self.offset) @ pseudo_inverse.T
+        return np.asarray((theta - self.offset) @ pseudo_inverse.T)
 
     def covariance(self, covariance_free: np.ndarray) -> np.ndarray:
         """Covariance (4, 4) of θ from that of p (k, k)."""
-        return self.matrix @ covariance_free @ self.matrix.T
+        return np.asarray(self.matrix @ covariance_free @ self.matrix.T)

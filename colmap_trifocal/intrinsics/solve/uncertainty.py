@@ -45,7 +45,9 @@ MIN_GROUPS = 4
 NULL_RATIO = 1e-8
 
 
-def image_groups(image_ids: Sequence[tuple[int, ...]], max_groups: int = MAX_GROUPS) -> list[set]:
+def image_groups(
+    image_ids: Sequence[tuple[int, ...]], max_groups: int = MAX_GROUPS
+) -> list[set[int]]:
     """Images of the tensors dealt into at most ``max_groups`` groups (sorted, round-robin)."""
     images = sorted({i for ids in image_ids for i in ids})
     count = min(max_groups, len(images))
@@ -109,14 +111,14 @@ def one_step_replicate(
     eigenvalues = np.linalg.eigvalsh(hessian)
     if eigenvalues[-1] <= 0.0 or eigenvalues[0] <= NULL_RATIO * eigenvalues[-1]:
         return None
-    return theta - matrix @ np.linalg.solve(hessian, gradient)
+    return np.asarray(theta - matrix @ np.linalg.solve(hessian, gradient))
 
 
 def jackknife_covariance(replicates: np.ndarray) -> np.ndarray:
     """``(g − 1)/g Σ (θ_(i) − θ̄)(θ_(i) − θ̄)ᵀ`` of replicates (g, k)."""
     g = len(replicates)
     deviations = replicates - replicates.mean(axis=0)
-    return (g - 1) / g * deviations.T @ deviations
+    return np.asarray((g - 1) / g * deviations.T @ deviations)
 
 
 def combined_information(
@@ -153,4 +155,4 @@ def combined_information(
         shrink = (vectors / np.maximum(values, 1.0)) @ vectors.T
         information_p = whitening.T @ shrink @ whitening
     pseudo_inverse = np.linalg.pinv(matrix)
-    return pseudo_inverse.T @ information_p @ pseudo_inverse
+    return np.asarray(pseudo_inverse.T @ information_p @ pseudo_inverse)

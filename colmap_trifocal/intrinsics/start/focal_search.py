@@ -30,9 +30,11 @@ focal length explains the tracks), and the start is kept.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
+from ...common.parabola import parabola_step
 from ...common.parallel import map_jobs
 from ...geometry.tensor_estimation import calibrated_hypothesis, transfer_errors
 from ...geometry.trifocal import intrinsics_matrix
@@ -164,7 +166,7 @@ def hypothesis_costs(
     return costs
 
 
-def _costs_job(job: tuple) -> np.ndarray:
+def _costs_job(job: tuple[Any, ...]) -> np.ndarray:
     return hypothesis_costs(*job)
 
 
@@ -280,8 +282,6 @@ def _parabola_minimum(factors: np.ndarray, costs: np.ndarray) -> float:
     best = int(np.argmin(costs))
     if best == 0 or best == len(costs) - 1:
         return float(factors[best])
-    before, centre, after = costs[best - 1 : best + 2]
-    curvature = before - 2 * centre + after
-    offset = 0.5 * (before - after) / curvature if curvature > 0 else 0.0
+    offset = parabola_step(*costs[best - 1 : best + 2])
     step = np.log(factors[best + 1] / factors[best])
     return float(factors[best] * np.exp(np.clip(offset, -0.5, 0.5) * step))

@@ -20,6 +20,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
+from typing import Any
 
 import numpy as np
 
@@ -79,7 +80,7 @@ class TensorEstimator:
     options: CalibrationOptions
     seeds: list[np.random.SeedSequence]
     starts_used: int = 0
-    _cache: dict[tuple, TripletFit | None] = field(default_factory=dict, repr=False)
+    _cache: dict[tuple[Any, ...], TripletFit | None] = field(default_factory=dict, repr=False)
 
     @property
     def budget(self) -> int:
@@ -202,7 +203,7 @@ class TensorEstimator:
         key = self._key(start)
         return sum(self._starts(key, p, True) for p in positions)
 
-    def _starts(self, key: tuple, position: int, second_start: bool) -> int:
+    def _starts(self, key: tuple[Any, ...], position: int, second_start: bool) -> int:
         """Refinement starts one fit takes at the start of ``key``: a first start 1; a
         second start 1 where it completes the first start's fit (0 where that deferred
         nothing), 2 where it fits from scratch."""
@@ -223,7 +224,7 @@ class TensorEstimator:
         )
 
     @staticmethod
-    def _key(start: np.ndarray) -> tuple:
+    def _key(start: np.ndarray) -> tuple[Any, ...]:
         """The cache key of a start K (fx, fy, cx, cy), to 1e-9 px."""
         return tuple(np.round(np.asarray(start, float), 9))
 

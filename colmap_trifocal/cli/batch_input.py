@@ -12,20 +12,21 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from ..common.errors import CalibrationError
 from ..database.from_reconstruction import MODEL_FILES
 from ..database.snapshot import DatabaseContents
 from ..database.writing import check_writable
-from .api import (
+from ..intrinsics.api import (
     add_read_seconds,
     calibrate_groups,
     read_contents,
     reconstruction_groups,
     write_calibrations,
 )
-from .options import CalibrationOptions
-from .results import CameraCalibration, SkippedGroup
+from ..intrinsics.options import CalibrationOptions
+from ..intrinsics.results import CameraCalibration, SkippedGroup
 
 
 def is_model_folder(path: Path) -> bool:
@@ -88,7 +89,7 @@ class InputTask:
     write: bool = False
 
 
-def calibrate_input(task: InputTask) -> list[dict]:
+def calibrate_input(task: InputTask) -> list[dict[str, Any]]:
     """The JSON lines of one input: one dict per group, or one error.
 
     A group's line is its ``to_json()`` object with ``database`` (the input's path)
