@@ -1,7 +1,7 @@
 """The command line, ``colmap-trifocal COMMAND``: one module per command, and what they share.
 
 Takes every stage; no stage takes anything from it. Each command module
-(:mod:`.calibrate`, :mod:`.run`, :mod:`.show`, :mod:`.demo`, :mod:`.evaluate`,
+(:mod:`intrinsics.api`, :mod:`.run`, :mod:`.show`, :mod:`.demo`, :mod:`.evaluate`,
 :mod:`.synthetic`) has ``add_parser`` and ``run``; ``calibrate`` hands a model folder to
 :mod:`.calibrate_model` and several inputs to :mod:`.batch`, and prints :mod:`.tables`.
 :mod:`.app` holds the parser and :func:`main`, :mod:`.signals` the handling of

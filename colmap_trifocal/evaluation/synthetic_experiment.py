@@ -9,7 +9,7 @@ is the truth times ``1 + U(-5 %, +5 %)``. Each run draws one scene and one prior
 and calibrates them with
 
 * ``msac-opt``, ``direct`` (and ``msac``): TrifocalCalib through
-  :func:`colmap_trifocal.intrinsics.api.calibrate_contents_methods` (the trifocal
+  :func:`intrinsics.api.calibrate_contents_methods` (the trifocal
   variants of a run share their focal search and tensors);
 * ``fundamental``: the Mendonça–Cipolla baseline on F re-fitted from the matches;
 * ``ba-floor``: a bundle adjustment of intrinsics, poses and points started from

@@ -200,7 +200,7 @@ def write_calibrations(path: Path | str, results: Sequence[CameraCalibration]) -
     Every camera id of a group gets the group's estimate. A group the images
     determined nothing of keeps its stored parameters: writing the prior back
     would record a guess as a calibration. Distortion is kept, per camera, except
-    where the stored one is 0 and the tracks showed some (:mod:`.lens_distortion`).
+    where the stored one is 0 and the tracks showed some (:mod:`intrinsics.lens.distortion`).
 
     Returns:
         The number of cameras written.

@@ -67,7 +67,7 @@ class CalibrationOptions:
     #: Every triplet has its own seed, so the result does not depend on this.
     workers: int | None = None
     #: Replace the prior's focal length by a search over calibrated three-view
-    #: hypotheses (:mod:`.focal_search`) before estimating the tensors.
+    #: hypotheses (:mod:`intrinsics.start.focal_search`) before estimating the tensors.
     focal_search: bool = True
     #: Triplets the focal search uses (the first selected ones: the one with most
     #: tracks, then the best-matched of the rest spread over the images).
@@ -79,7 +79,7 @@ class CalibrationOptions:
     #: defence, so its far-off estimates come from bad tensors, not from the start).
     restart: bool = True
     #: msac-opt only: polish the estimate by a bundle adjustment of the agreeing
-    #: triplets' tracks with one shared camera (:mod:`.triplet_bundle`), kept when at
+    #: triplets' tracks with one shared camera (:mod:`intrinsics.polish.bundle`), kept when at
     #: least as many triplets agree with it and its image jackknife is no wider than
     #: the constraint solve's. Near-planar triplets, whose whitened
     #: constraints are a poor first-order measure, then count by their likelihood.

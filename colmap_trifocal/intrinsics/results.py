@@ -35,7 +35,7 @@ __all__ = [
     "apply_cameras",
 ]
 
-#: What :func:`.diagnosis.diagnose` says when the tracks show no known cause.
+#: What :func:`intrinsics.assess.diagnosis.diagnose` says when the tracks show no known cause.
 NO_CAUSE = "no degenerate motion found"
 
 #: ``start_source`` values: where the starting intrinsics came from.
@@ -72,14 +72,14 @@ class TripletReport:
 class CameraCalibration:
     """The estimate for one camera, for every camera id of its group, as written by
     ``calibrate --json``: the camera's final result, after the constraint solve
-    (:class:`.selfcalibration.FallbackSolution`), the polish and the assessment.
+    (:class:`intrinsics.solve.constraints.FallbackSolution`), the polish and the assessment.
 
     ``camera_id`` is the group's first id and ``camera_ids`` all of them (sorted);
     ``model`` is the COLMAP camera model. ``observable`` is True where the std is
     below 1 % of the parameter's scale (the focal length; half the image size for the
-    principal point, see :mod:`.observability`). Other parameters are either still estimated (weakly
-    determined, std up to 3 tolerances), tied (``std`` None) or held at the best
-    evidence, the start or a decisive focal search, with that evidence's std
+    principal point, see :mod:`intrinsics.solve.observability`). Other parameters are either
+    still estimated (weakly determined, std up to 3 tolerances), tied (``std`` None) or held
+    at the best evidence, the start or a decisive focal search, with that evidence's std
     (``source``, ``assumptions``). ``unconstrained_std`` is each parameter's std when all of
     the camera model's parameters are estimated (None where undetermined).
     """
@@ -111,15 +111,16 @@ class CameraCalibration:
     #: The focal search's result: focal length and std (pixels), whether its cost
     #: curve was decisive and whether it replaced the prior's focal length.
     focal_search: dict[str, Any] | None = None
-    #: The cause of undetermined parameters the data shows (:mod:`.diagnosis`), or None.
+    #: The cause of undetermined parameters the data shows
+    #: (:mod:`intrinsics.assess.diagnosis`), or None.
     diagnosis: str | None = None
-    #: msac-opt's bundle adjustment of the agreeing triplets (:mod:`.triplet_bundle`):
+    #: msac-opt's bundle adjustment of the agreeing triplets (:mod:`intrinsics.polish.bundle`):
     #: ``used`` (it replaced the constraint estimate), ``agreeing`` triplets (λ < τ²;
     #: None when it failed) and the constraint estimate it started from
     #: (``constraints``: fx, fy, cx, cy in pixels). None when it did not run.
     triplet_bundle: dict[str, Any] | None = None
     #: The lens distortion the triplets' calibrated bundle adjustment found
-    #: (:mod:`.lens_distortion`): ``present``, ``params`` and ``std`` (COLMAP's order
+    #: (:mod:`intrinsics.lens.distortion`): ``present``, ``params`` and ``std`` (COLMAP's order
     #: of the model's extra parameters), the likelihood-ratio ``statistic`` and its
     #: ``threshold``. None when the stored distortion was taken as it is.
     lens_distortion: dict[str, Any] | None = None
@@ -132,7 +133,7 @@ class CameraCalibration:
     #: method calibrated together.
     stage_seconds: dict[str, float] = field(default_factory=dict)
     #: Triplet refinement starts the tensors stage ran for this camera (its work;
-    #: bounded by :data:`.tensor_set.MAX_STARTS_PER_TRIPLET` per triplet).
+    #: bounded by :data:`intrinsics.tensors.estimator.MAX_STARTS_PER_TRIPLET` per triplet).
     tensor_starts: int = 0
     tensors: list[TripletTensor] = field(default_factory=list, repr=False)
     #: The camera as stored in the database (model, size, distortion) whose prior and

@@ -3,7 +3,7 @@
 Turns one camera's final solve into its :class:`.results.CameraCalibration`. A
 parameter is determined when it was estimated, its std is within tolerance (held
 values' uncertainty counted) and the data actually moved it
-(:func:`.selfcalibration.data_moves`). Intrinsics and std in pixels.
+(:func:`intrinsics.solve.constraints.data_moves`). Intrinsics and std in pixels.
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ def assess(
         start: the normalisation of ``tensors`` (after a restart), pixels.
         polished: the estimate after the polish stage.
         tracks: per triplet, its tracks (3, n, 2), pixels (for the diagnosis).
-        lens: the distortion the triplets show (:mod:`.lens_distortion`), None when
+        lens: the distortion the triplets show (:mod:`intrinsics.lens.distortion`), None when
             it was not estimated.
         workers: threads for the diagnosis (None: one per core).
         finding: a cause the earlier stages found (the lens search's bent tracks),

@@ -1,6 +1,6 @@
 """Why the images do not determine some intrinsics: the cause the tracks show.
 
-:mod:`.observability` says *which* parameters the triplets leave undetermined;
+:mod:`intrinsics.solve.observability` says *which* parameters the triplets leave undetermined;
 this module says *why*, from the triplets' tracks measured with the estimate K
 (pixels, K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]):
 

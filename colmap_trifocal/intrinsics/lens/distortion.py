@@ -8,7 +8,7 @@ constraints single out k1. A *calibrated* bundle adjustment does: the agreeing
 triplets, each with its own poses and points, share one camera whose distortion
 parameters are free, and their tracks together span the image up to its corners.
 
-What. The calibrated triplets of :mod:`.triplet_bundle` (their poses and points from
+What. The calibrated triplets of :mod:`intrinsics.polish.bundle` (their poses and points from
 the tensors at the estimate) in one pycolmap reconstruction whose camera is the
 stored model (``SIMPLE_RADIAL``: k; ``RADIAL``: k1, k2; ``OPENCV``: k1, k2, p1, p2), or
 for a pinhole camera ``SIMPLE_RADIAL`` (``SIMPLE_PINHOLE``) or ``OPENCV`` (``PINHOLE``);
@@ -21,7 +21,7 @@ parameters; the std comes from pycolmap's covariance of the adjustment
 (:func:`pycolmap.estimate_ba_covariance`, each triplet's scale fixed by one of its
 points), scaled by σ² of the residuals, or for
 ``SIMPLE_RADIAL`` / ``RADIAL`` the delete-a-group-of-images jackknife where it is larger
-(as the polish's, :mod:`.triplet_bundle`).
+(as the polish's, :mod:`intrinsics.polish.bundle`).
 
 A stored camera whose distortion is not all 0 is taken as stored: its keypoints are
 already undistorted with it. Intrinsics are (fx, fy, cx, cy) in pixels, COLMAP's pixel
@@ -40,19 +40,18 @@ from scipy.stats import chi2
 from ...common.log import keep_colmap_quiet
 from ...database.cameras import CameraInfo
 from ...geometry.tensor_estimation import TripletTensor
-from ..polish.bundle import (
-    _FUNCTION_TOLERANCE,
-    _inlier_pixels,
-    _one_step_jackknife_std,
-    _refined_directions,
-    _shared_camera,
-    _SharedCamera,
-    calibrated_information,
-    observed_tracks,
-    pycolmap_camera_setup,
-)
+from ..polish.bundle import calibrated_information
+from ..polish.calibrated_tracks import inlier_pixels, observed_tracks
 from ..polish.information import reduced_information
+from ..polish.shared_camera import (
+    FUNCTION_TOLERANCE,
+    SharedCamera,
+    pycolmap_camera_setup,
+    refined_directions,
+    shared_camera,
+)
 from ..solve.parametrization import FreeParameters
+from ..solve.uncertainty import one_step_jackknife_std
 
 #: Probability that the test finds distortion in an undistorted lens (χ² tail): low
 #: power costs more than a false alarm, whose joint estimate is still unbiased and
@@ -70,7 +69,7 @@ MAX_TRACKS = 300
 #: Triplets that must agree before the distortion is estimated at all.
 MIN_TRIPLETS = 2
 #: Models whose distortion is radial only, with a single focal length: the jackknife
-#: of :func:`.bundle_information.reduced_information` applies.
+#: of :func:`intrinsics.polish.information.reduced_information` applies.
 _RADIAL_MODELS = ("SIMPLE_RADIAL", "RADIAL")
 #: The model a pinhole camera's distortion is looked for with (its own focal lengths).
 _DETECTION_MODELS = {"SIMPLE_PINHOLE": "SIMPLE_RADIAL", "PINHOLE": "OPENCV"}
@@ -185,7 +184,7 @@ def estimate_distortion(
             screen reads only those; default all).
         workers: threads for the per-triplet work (None: one per core).
         observed: where ``tracks`` were warped from the raw keypoints (the lens
-            search, :mod:`.lens_search`): the raw tracks and the distortion the
+            search, :mod:`intrinsics.lens.search`): the raw tracks and the distortion the
             adjustment starts from; the distortion is then known to be there (no
             screen) and is adjusted from the raw tracks.
 
@@ -228,9 +227,9 @@ def estimate_distortion(
     fits = observed_tracks(tensors, tracks, start, MAX_TRACKS, workers)
     keypoints, distortion = None, None
     if observed is not None:
-        keypoints = [_inlier_pixels(fit.tensor, observed.tracks, MAX_TRACKS) for fit in fits]
+        keypoints = [inlier_pixels(fit.tensor, observed.tracks, MAX_TRACKS) for fit in fits]
         distortion = observed.distortion
-    shared = _shared_camera(
+    shared = shared_camera(
         fits, start, intrinsics, camera_model, size, workers, keypoints, distortion
     )
     if shared is None:
@@ -334,7 +333,7 @@ def _lens_setup(free_parameters: FreeParameters) -> tuple[str, bool, bool] | Non
 
 
 def _cost_without_distortion(
-    shared: _SharedCamera, agreeing: list[int], refine_focal: bool, refine_principal_point: bool
+    shared: SharedCamera, agreeing: list[int], refine_focal: bool, refine_principal_point: bool
 ) -> float:
     """C₀: the agreeing triplets' squared error (px²) adjusted with the distortion held
     at 0, on a copy of the reconstruction (itself at the distortion's optimum).
@@ -362,7 +361,7 @@ def _cost_without_distortion(
         cost = shared.cost(agreeing)
         if first.termination_type != pycolmap.BundleAdjustmentTerminationType.NO_CONVERGENCE:
             return cost
-        tolerance = _FUNCTION_TOLERANCE
+        tolerance = FUNCTION_TOLERANCE
         if np.isfinite(cost) and cost > 0:
             tolerance = max(C0_PRECISION * max(cost - with_distortion, 0.0) / cost, tolerance)
         rest = shared.solve(
@@ -405,7 +404,7 @@ def _intrinsics_std(camera: CameraInfo, params_std: np.ndarray) -> np.ndarray:
 
 
 def _jackknife_std(
-    shared: _SharedCamera,
+    shared: SharedCamera,
     agreeing: list[int],
     fitted: CameraInfo,
     tensors: list[TripletTensor],
@@ -413,7 +412,7 @@ def _jackknife_std(
 ) -> np.ndarray | None:
     """(4 + m,) delete-a-group-of-images jackknife std of (fx, fy, cx, cy, k1[, k2]) of
     a ``SIMPLE_RADIAL`` / ``RADIAL`` camera (pixels; k unitless): one Gauss–Newton step
-    per replicate on the triplets' Schur complements (:mod:`.bundle_information`).
+    per replicate on the triplets' Schur complements (:mod:`intrinsics.polish.information`).
     None for other models or too few image groups."""
     if fitted.model not in _RADIAL_MODELS:
         return None
@@ -424,9 +423,9 @@ def _jackknife_std(
         poses, points = shared.poses_and_points(triplet)
         parts.append(reduced_information(fitted.intrinsics, poses, points, triplet.pixels, radial))
     # The radial models have a single focal length, refined with the distortion.
-    free = _refined_directions(True, True, refine_principal_point, extra=len(radial))
+    free = refined_directions(True, True, refine_principal_point, extra=len(radial))
     groups = [tensors[shared.triplets[p].index].image_ids for p in agreeing]
-    return _one_step_jackknife_std(
+    return one_step_jackknife_std(
         np.r_[fitted.intrinsics, radial],
         np.stack([h for h, _, _ in parts]),
         np.stack([g for _, g, _ in parts]),
@@ -449,7 +448,7 @@ def _screen(
 
     Each tensor's calibrated cameras at ``intrinsics`` and its triangulated tracks give
     its Schur complement and gradient on (fx, fy, cx, cy, k1) at k1 = 0
-    (:func:`.bundle_information.reduced_information`); summed over the tensors, one
+    (:func:`intrinsics.polish.information.reduced_information`); summed over the tensors, one
     Gauss–Newton step predicts how much the squared error falls with k1 free beyond
     what the intrinsics alone take, over σ². Milliseconds per tensor. None where it
     cannot be formed.
@@ -468,7 +467,7 @@ def _screen(
     observations = sum(6 * part.num_tracks for part in parts)
     unknowns = sum(3 * part.num_tracks + 11 for part in parts)
     tied = camera_model in _RADIAL_MODELS or camera.single_focal
-    with_k = _refined_directions(tied, refine_focal, refine_principal_point, extra=1)
+    with_k = refined_directions(tied, refine_focal, refine_principal_point, extra=1)
     if observations <= unknowns + with_k.shape[1]:
         return None
     variance = cost / (observations - unknowns - with_k.shape[1])

@@ -3,7 +3,7 @@
 Why. Strong barrel distortion (a 100° lens, an action or drone camera: a fifth to a
 third of the radius in the image corners) bends the tracks so far from any pinhole
 camera that the projective tensors disagree with each other, and the lens stage
-(:mod:`.lens_distortion`), which starts from agreeing tensors, never runs: the run
+(:mod:`intrinsics.lens.distortion`), which starts from agreeing tensors, never runs: the run
 can only hold the start.
 
 How. Two one-parameter warps of the pixels that need no focal length, both with
@@ -27,12 +27,12 @@ robust fundamental matrix (OpenCV's USAC) on the warped tracks, and the warp cos
 truncated Sampson errors summed over the pairs (each error scaled back to the raw
 pixels by the warp's magnification there). The family with the lower grid minimum is
 kept, a parabola through its minimum and neighbours gives the parameter, and the
-focal search (:func:`.focal_search.search_focal`) runs on the tracks warped with it.
+focal search (:func:`intrinsics.start.focal_search.search_focal`) runs on the tracks warped with it.
 The warp is taken when the unwarped tracks cost :data:`CLEAR_RATIO` times more.
 
 The warp only lets the tensors and the solve see nearly pinhole tracks: the camera's
 own model (``SIMPLE_RADIAL`` k, ``RADIAL`` k1 k2, ``OPENCV`` k1 k2 p1 p2) is adjusted
-afterwards from the raw tracks (:mod:`.lens_distortion`), started from the warp's
+afterwards from the raw tracks (:mod:`intrinsics.lens.distortion`), started from the warp's
 least-squares polynomial at the estimated focal length (:func:`polynomial_start`).
 Pixels in COLMAP's convention (the centre of the top-left pixel at (0.5, 0.5)).
 """
@@ -61,7 +61,7 @@ KAPPAS = tuple(np.round(np.arange(-0.25, 0.01, 0.05), 2))
 #: The two warp families (see the module).
 DIVISION, POLYNOMIAL = "division", "polynomial"
 #: The unwarped tracks must cost this many times more than the warped ones for the
-#: warp to be taken (as the focal search's own :data:`.focal_search.CLEAR_RATIO`).
+#: warp to be taken (as the focal search's own :data:`intrinsics.start.focal_search.CLEAR_RATIO`).
 CLEAR_RATIO = 1.5
 #: Tracks per view pair (evenly spaced), RANSAC iterations, inlier threshold (pixels)
 #: of the fundamental matrices, and the Sampson distance (pixels) errors are

@@ -1,6 +1,6 @@
 """What one calibrated triplet's tracks say about the shared camera: its Schur complement.
 
-A triplet of the polish (:mod:`.triplet_bundle`) has three calibrated cameras
+A triplet of the polish (:mod:`intrinsics.polish.bundle`) has three calibrated cameras
 ``[R_v | t_v]`` (view 1 fixed), n points ``X_j`` and their pixels ``x_vj``; the
 residuals are ``π(K (R_v X_j + t_v)) − x_vj`` in pixels, ``K = [[fx, 0, cx],
 [0, fy, cy], [0, 0, 1]]``. Linearised at a solution, the normal equations of

@@ -1,5 +1,5 @@
 """The polish stage: msac-opt's estimate replaced by the triplets' shared-camera bundle
-adjustment (:mod:`.triplet_bundle`) where that is at least as well supported.
+adjustment (:mod:`intrinsics.polish.bundle`) where that is at least as well supported.
 
 The bundle adjustment replaces the constraint estimate when
 
@@ -11,7 +11,7 @@ The bundle adjustment replaces the constraint estimate when
   here is the sum of the estimated parameters' jackknife variances relative to the
   focal length, over the same image groups (the polish's replicates are one
   Gauss–Newton step each on the triplets' Schur complements,
-  :mod:`.bundle_information`). Two such variances from ten image groups differ by
+  :mod:`intrinsics.polish.information`). Two such variances from ten image groups differ by
   a factor of two by chance in about one case in five: without a triplet gained,
   the polish replaces the constraint estimate only on clear evidence that it is
   the tighter one.
@@ -19,7 +19,7 @@ The bundle adjustment replaces the constraint estimate when
 Before any adjustment: where every tensor already agrees with the constraint
 estimate (the polish cannot add triplets, and starts at its optimum's first-order
 neighbourhood), its move and its jackknife are predicted from its first Gauss–Newton
-step (:func:`.triplet_bundle.predict_polish`, milliseconds). It is not run where it
+step (:func:`intrinsics.polish.bundle.predict_polish`, milliseconds). It is not run where it
 could not be kept (the predicted jackknife variance exceeds ``SKIP_RATIO`` times the
 constraints'), nor where it could not change the answer: every estimated parameter
 would move by at most ``MOVE_FRACTION`` of its std, and the std it would report is
@@ -44,7 +44,8 @@ from ...geometry.tensor_estimation import TripletTensor
 from ..results import PARAMETER_NAMES
 from ..solve.constraints import FallbackSolution
 from ..solve.uncertainty import jackknife_covariance
-from .bundle import TripletBundleResult, polish_intrinsics, predict_polish, pycolmap_camera_setup
+from .bundle import TripletBundleResult, polish_intrinsics, predict_polish
+from .shared_camera import pycolmap_camera_setup
 
 #: Largest ratio of the polish's jackknife variance to the constraint solve's at
 #: which the polish is kept when no more triplets agree with it than with the

@@ -5,7 +5,7 @@ so a candidate K acts on them through ``M = K0⁻¹ K``. The unknowns are the
 relative corrections ``θ = (fx/fx0 − 1, fy/fy0 − 1, (cx − cx0)/fx0, (cy − cy0)/fy0)``,
 ``M(θ) = [[1 + θ0, 0, θ2], [0, 1 + θ1, θ3], [0, 0, 1]]``: all four are
 dimensionless and of the same scale, which keeps the problem well conditioned.
-Which of them are estimated is a :class:`.parametrization.Parametrization`
+Which of them are estimated is a :class:`intrinsics.solve.parametrization.Parametrization`
 (single-focal cameras tie fy to fx; parameters the images do not determine are
 tied or held at the prior, :func:`solve_with_fallback`).
 
@@ -150,7 +150,7 @@ class ConstraintProblem:
     their minimisers; each solve of it gives a :class:`ConstraintSolution`.
 
     The unknowns are those of ``parametrization`` (``θ = A p + b``, see
-    :mod:`.parametrization`); by default all four.
+    :mod:`intrinsics.solve.parametrization`); by default all four.
     """
 
     tensors: np.ndarray  # (n, 3, 3, 3) in prior-normalised coordinates
@@ -445,7 +445,8 @@ class FallbackSolution:
     free_parameters: FreeParameters  # the parameters the images determine
     unconstrained: ConstraintSolution  # of ``base``: every parameter the camera model has
     #: (4,) std of θ of ``solution``, its ties and holds counted as uncertain
-    #: (:func:`.observability.effective_std`); meaningful for the estimated parameters.
+    #: (:func:`intrinsics.solve.observability.effective_std`); meaningful for the estimated
+    #: parameters.
     relative_std: np.ndarray
     #: (4,) the std of θ below which a parameter counted as determined.
     tolerances: np.ndarray
@@ -470,10 +471,10 @@ class FallbackProblem:
         held: the values held parameters keep (the best the run has: the prior, or
             the focal search's focal length), pixels.
         tolerances: (4,) std of θ below which a parameter is determined
-            (:func:`.observability.tolerance`).
+            (:func:`intrinsics.solve.observability.tolerance`).
         tau: MSAC threshold on the whitened residual norm.
         held_std: (4,) how well the held values are known, relative to the focal
-            length (None: a prior's, :func:`.observability.default_held_std`).
+            length (None: a prior's, :func:`intrinsics.solve.observability.default_held_std`).
     """
 
     tensors: list[TripletTensor]
@@ -502,7 +503,7 @@ def solve_with_fallback(problem: FallbackProblem, base: FreeParameters) -> Fallb
     """Solve ``base``; while parameters are undetermined, re-solve without them.
 
     Each round keeps the largest set of parameters the information at the current
-    estimate determines (:func:`.observability.select_free_parameters`), so every
+    estimate determines (:func:`intrinsics.solve.observability.select_free_parameters`), so every
     round estimates strictly fewer parameters and the loop ends (at worst with
     everything held). ``direct`` keeps ``base``: it has no outlier defence, so
     outlier tensors inflate its reduced χ² by orders of magnitude and its std says
@@ -515,7 +516,7 @@ def solve_with_fallback(problem: FallbackProblem, base: FreeParameters) -> Fallb
 
     The returned std of the estimated parameters includes what the held values'
     uncertainty does to them: to first order through the information
-    (:func:`.observability.effective_std`), and beyond it by re-solving with the
+    (:func:`intrinsics.solve.observability.effective_std`), and beyond it by re-solving with the
     held values moved by their std (:func:`held_value_sensitivity`); the larger
     of the two counts.
     """

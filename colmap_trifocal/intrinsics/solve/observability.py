@@ -10,8 +10,8 @@ Some camera motions hide intrinsics from every self-calibration method:
 * too few or too short-baseline triplets: everything is weakly determined.
 
 The test is the information about θ (the relative corrections of
-:mod:`.selfcalibration`) at the estimate: the curvature of the whitened
-constraints combined with an image jackknife (:mod:`.uncertainty`), with
+:mod:`intrinsics.solve.constraints`) at the estimate: the curvature of the whitened
+constraints combined with an image jackknife (:mod:`intrinsics.solve.uncertainty`), with
 directions the raw constraints do not see at all removed (exact degeneracy,
 where whitening by a tiny noise would hide it). For a :class:`.FreeParameters`
 (``θ = A p + b``) the covariance is ``(Aᵀ H A)⁻¹``; directions whose information
@@ -225,7 +225,7 @@ def select_free_parameters(
 
     Returns:
         ``current`` when it qualifies; otherwise the fallback (at worst
-        :data:`.parametrization.HELD`: everything held at the prior).
+        :data:`intrinsics.solve.parametrization.HELD`: everything held at the prior).
     """
     single_focal = base.focal == "tied"
     best: tuple[int, float, FreeParameters] | None = None

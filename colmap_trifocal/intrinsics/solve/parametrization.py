@@ -2,12 +2,12 @@
 
 The constraint solver works on the relative corrections
 ``θ = (fx/fx0 − 1, fy/fy0 − 1, (cx − cx0)/fx0, (cy − cy0)/fy0)`` of a start
-``(fx0, fy0, cx0, cy0)`` (pixels; see :mod:`.selfcalibration`). Not every
+``(fx0, fy0, cx0, cy0)`` (pixels; see :mod:`intrinsics.solve.constraints`). Not every
 parameter is always estimated:
 
 * single-focal COLMAP models (``SIMPLE_PINHOLE``, ...) have ``fx = fy``;
 * when the images do not determine a parameter (planar or forward motion, pure
-  translation, see :mod:`.observability`), it is *tied* (``fy = fx``, square
+  translation, see :mod:`intrinsics.solve.observability`), it is *tied* (``fy = fx``, square
   pixels) or *held* at the prior rather than estimated from noise.
 
 A :class:`FreeParameters` names the estimated parameters; its

@@ -1,7 +1,7 @@
 """Uncertainty of the intrinsics: curvature of the cost and an image jackknife.
 
 Two estimates of the covariance of θ (the relative corrections of
-:mod:`.selfcalibration`):
+:mod:`intrinsics.solve.constraints`):
 
 * **Curvature**: ``H⁻¹`` with ``H = JᵀJ`` of the whitened constraints of the
   inlier tensors (:meth:`.ConstraintProblem.information`). Exact when the
@@ -156,3 +156,47 @@ def combined_information(
         information_p = whitening.T @ shrink @ whitening
     pseudo_inverse = np.linalg.pinv(matrix)
     return np.asarray(pseudo_inverse.T @ information_p @ pseudo_inverse)
+
+
+def one_step_jackknife_std(
+    intrinsics: np.ndarray,
+    information: np.ndarray,
+    gradients: np.ndarray,
+    free: np.ndarray,
+    groups: list[tuple[int, int, int]],
+) -> np.ndarray | None:
+    """(4,) delete-a-group-of-images jackknife std (pixels) of a shared camera: each
+    replicate one Gauss–Newton step ``−(Σ_kept H_t)⁻¹ Σ_kept g_t`` from ``intrinsics``.
+
+    ``information`` (m, 4, 4) and ``gradients`` (m, 4) per triplet, ``free`` (4, k) the
+    refined parameters, ``groups`` the triplets' image ids. None with too few groups.
+    """
+
+    def replicate(keep: np.ndarray) -> np.ndarray | None:
+        return gauss_newton_step(
+            intrinsics, information[keep].sum(axis=0), gradients[keep].sum(axis=0), free
+        )
+
+    replicates = jackknife_replicates(groups, replicate)
+    return None if replicates is None else np.sqrt(np.diag(jackknife_covariance(replicates)))
+
+
+def restricted_information(information: np.ndarray, free: np.ndarray) -> np.ndarray | None:
+    """``Aᵀ H A`` (k, k): a summed information H (q, q) on the k refined directions A
+    (``free``, q × k); None where it is not finite or singular."""
+    reduced = free.T @ information @ free
+    if not np.all(np.isfinite(reduced)) or np.linalg.matrix_rank(reduced) < free.shape[1]:
+        return None
+    return np.asarray(reduced)
+
+
+def gauss_newton_step(
+    intrinsics: np.ndarray, information: np.ndarray, gradient: np.ndarray, free: np.ndarray
+) -> np.ndarray | None:
+    """The parameters after one Gauss–Newton step ``−A (AᵀHA)⁻¹ Aᵀg`` from ``intrinsics``
+    on a summed information H (q, q) and gradient g (q,), along the refined directions
+    A (``free``); None where :func:`restricted_information` is."""
+    reduced = restricted_information(information, free)
+    if reduced is None:
+        return None
+    return np.asarray(intrinsics - free @ np.linalg.solve(reduced, free.T @ gradient))

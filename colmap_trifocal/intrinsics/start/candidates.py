@@ -54,7 +54,7 @@ def held_values(
 
     Returns:
         (fx, fy, cx, cy) in pixels, their std relative to the focal length (θ
-        units; a prior's assumed :func:`.observability.default_held_std`), and the
+        units; a prior's assumed :func:`intrinsics.solve.observability.default_held_std`), and the
         source of the focal length (``"focal-search"`` or ``"prior"``).
     """
     held = np.asarray(prior, float).copy()

@@ -1,0 +1,342 @@
+"""One camera shared by several triplets' calibrated bundle adjustments (pycolmap).
+
+The engine of the polish (:mod:`.bundle`) and of the lens stage
+(:mod:`..lens.distortion`): each triplet enters with its calibrated cameras at a
+camera K and its tracks triangulated (:mod:`.calibrated_tracks`), as its own three
+images and points of one ``pycolmap.Reconstruction`` with one camera. A triplet's
+poses and points can be adjusted alone at the shared camera (its likelihood ratio
+λ against its projective fit), or several triplets together with the camera free;
+their Schur complements on the camera give its information (:mod:`.information`).
+Pixels in COLMAP's convention (the centre of the top-left pixel at (0.5, 0.5)).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pycolmap
+
+from ...common.bundle_adjustment import bundle_adjustment_options
+from ...common.log import keep_colmap_quiet
+from ...common.parallel import map_jobs
+from ...database.cameras import CameraInfo
+from ..solve.parametrization import FreeParameters
+from .calibrated_tracks import Observed, calibrated_cameras, triangulate
+from .information import reduced_information
+
+#: The one camera of the shared reconstruction.
+CAMERA_ID = 1
+#: Ceres tolerances: the polish should reach the optimum, not COLMAP's early stop.
+FUNCTION_TOLERANCE = 1e-12
+GRADIENT_TOLERANCE = 1e-14
+
+
+MAX_ITERATIONS = 200
+
+
+def pycolmap_camera_setup(free_parameters: FreeParameters) -> tuple[str, bool, bool] | None:
+    """(COLMAP camera model, refine focal length, refine principal point) that estimate
+    ``free_parameters``.
+
+    None when pycolmap cannot express it (one principal-point coordinate held) or
+    nothing is estimated.
+    """
+    if free_parameters.cx != free_parameters.cy or free_parameters.dimension == 0:
+        return None
+    camera_model = "SIMPLE_PINHOLE" if free_parameters.focal == "tied" else "PINHOLE"
+    return camera_model, free_parameters.focal != "held", free_parameters.cx
+
+
+@dataclass
+class AdjustedTriplet:
+    """One triplet inside the shared reconstruction."""
+
+    index: int  # position among the tensors
+    image_ids: tuple[int, int, int]  # the triplet's images in the reconstruction
+    point_ids: np.ndarray  # (n,) its 3D points
+    pixels: np.ndarray  # (3, n, 2) its tracks, pixels
+    projective_cost: float  # C_proj, px²
+    sigma2: float  # σ², px²
+
+
+class SharedCamera:
+    """A pycolmap reconstruction: one camera, each triplet its own three images and points."""
+
+    def __init__(
+        self,
+        intrinsics: np.ndarray,
+        camera_model: str,
+        width: int,
+        height: int,
+        distortion: np.ndarray | None = None,
+    ):
+        """A camera of ``camera_model`` (any of :data:`..database.cameras.SUPPORTED_MODELS`)
+        at (fx, fy, cx, cy), pixels, its distortion parameters ``distortion`` (COLMAP's
+        order; default 0)."""
+        self.reconstruction = pycolmap.Reconstruction()
+        blank = pycolmap.Camera.create_from_model_name(CAMERA_ID, camera_model, 1.0, width, height)
+        zero = CameraInfo(CAMERA_ID, camera_model, width, height, np.zeros(len(blank.params)))
+        if distortion is not None:
+            zero = zero.with_distortion(distortion)
+        camera = zero.with_intrinsics(*map(float, intrinsics)).to_pycolmap()
+        self.reconstruction.add_camera_with_trivial_rig(camera)
+        self.triplets: list[AdjustedTriplet] = []
+
+    @property
+    def camera(self) -> pycolmap.Camera:
+        """The shared camera, as adjusted."""
+        return self.reconstruction.cameras[CAMERA_ID]
+
+    def cost(self, which: list[int]) -> float:
+        """Summed squared reprojection error (px²) of the triplets ``which``."""
+        return float(sum(self._squared_errors(self.triplets[p]).sum() for p in which))
+
+    def intrinsics(self) -> np.ndarray:
+        camera = self.reconstruction.cameras[CAMERA_ID]
+        return np.array(
+            [
+                camera.focal_length_x,
+                camera.focal_length_y,
+                camera.principal_point_x,
+                camera.principal_point_y,
+            ]
+        )
+
+    def add(
+        self, observed: Observed, cameras: np.ndarray, keypoints: np.ndarray | None = None
+    ) -> None:
+        """Add a triplet's tracks with its calibrated cameras (3, 3, 4): its points
+        triangulated from its (undistorted) tracks, observed at ``keypoints`` (3, n, 2)
+        pixels where the camera's distortion is to explain them (default: the tracks)."""
+        intrinsics = self.intrinsics()
+        normalised = (observed.pixels - intrinsics[2:]) / intrinsics[:2]
+        points = triangulate(cameras, normalised)
+        pixels = observed.pixels if keypoints is None else keypoints
+        first = 3 * len(self.triplets) + 1
+        image_ids = (first, first + 1, first + 2)
+        for view, image_id in enumerate(image_ids):
+            image = pycolmap.Image(
+                name=f"{image_id}.png",
+                keypoints=np.ascontiguousarray(pixels[view], dtype=np.float64),
+                camera_id=CAMERA_ID,
+                image_id=image_id,
+            )
+            pose = pycolmap.Rigid3d(
+                pycolmap.Rotation3d(cameras[view][:, :3]), cameras[view][:, 3].copy()
+            )
+            self.reconstruction.add_image_with_trivial_frame(image, pose)
+        point_ids = np.array(
+            [
+                self.reconstruction.add_point3D(
+                    point, pycolmap.Track([pycolmap.TrackElement(i, k) for i in image_ids])
+                )
+                for k, point in enumerate(points)
+            ]
+        )
+        self.triplets.append(
+            AdjustedTriplet(
+                observed.index,
+                image_ids,
+                point_ids,
+                pixels,
+                observed.projective_cost,
+                observed.sigma2,
+            )
+        )
+
+    def adjuster(
+        self,
+        which: list[int],
+        refine_focal: bool,
+        refine_principal_point: bool,
+        refine_distortion: bool = False,
+        fix_scale: bool = False,
+        function_tolerance: float = FUNCTION_TOLERANCE,
+        max_iterations: int = MAX_ITERATIONS,
+    ) -> pycolmap.CeresBundleAdjuster:
+        """pycolmap's bundle adjuster of the triplets ``which`` (positions in
+        ``self.triplets``): poses and points, the camera's parameters as asked.
+
+        Each triplet's first pose is held; its scale is a gauge direction that Ceres'
+        damping handles, or, with ``fix_scale`` (for a covariance, which needs a problem
+        without gauge freedom), that its first point holds.
+        """
+        config = pycolmap.BundleAdjustmentConfig()
+        for position in which:
+            triplet = self.triplets[position]
+            for image_id in triplet.image_ids:
+                config.add_image(image_id)
+            first = self.reconstruction.images[triplet.image_ids[0]]
+            config.set_constant_rig_from_world_pose(first.frame_id)
+            if fix_scale:
+                config.add_constant_point(int(triplet.point_ids[0]))
+        if not (refine_focal or refine_principal_point or refine_distortion):
+            config.set_constant_cam_intrinsics(CAMERA_ID)
+        options = bundle_adjustment_options(
+            refine_focal,
+            refine_principal_point,
+            refine_distortion,
+            function_tolerance=function_tolerance,
+            gradient_tolerance=GRADIENT_TOLERANCE,
+            max_iterations=max_iterations,
+            threads=1,
+        )
+        return pycolmap.create_default_ceres_bundle_adjuster(options, config, self.reconstruction)
+
+    def adjust(
+        self,
+        which: list[int],
+        refine_focal: bool,
+        refine_principal_point: bool,
+        refine_distortion: bool = False,
+    ) -> bool:
+        """Bundle-adjust the triplets ``which`` in place (:meth:`adjuster`); False when
+        Ceres finds no usable solution."""
+        summary = self.solve(which, refine_focal, refine_principal_point, refine_distortion)
+        return bool(summary.is_solution_usable())
+
+    def solve(
+        self,
+        which: list[int],
+        refine_focal: bool,
+        refine_principal_point: bool,
+        refine_distortion: bool = False,
+        function_tolerance: float = FUNCTION_TOLERANCE,
+        max_iterations: int = MAX_ITERATIONS,
+    ) -> pycolmap.BundleAdjustmentSummary:
+        """:meth:`adjust` with Ceres' relative ``function_tolerance`` and
+        ``max_iterations`` given; pycolmap's summary of the solve."""
+        with keep_colmap_quiet():
+            adjuster = self.adjuster(
+                which,
+                refine_focal,
+                refine_principal_point,
+                refine_distortion,
+                function_tolerance=function_tolerance,
+                max_iterations=max_iterations,
+            )
+            return adjuster.solve()
+
+    def adjust_each(self, which: list[int]) -> bool:
+        """Adjust the poses and points of each triplet of ``which`` at the camera as it
+        is, one problem per triplet (they share nothing while the camera is held, and
+        one triplet far from the camera would keep a joint problem iterating for all);
+        False when Ceres finds no usable solution for any of them."""
+        usable = [self.adjust([position], False, False) for position in which]
+        return any(usable)
+
+    def poses_and_points(self, triplet: AdjustedTriplet) -> tuple[np.ndarray, np.ndarray]:
+        """A triplet's cameras (3, 3, 4) ``[R | t]`` and points (n, 3), as adjusted."""
+        poses = np.stack(
+            [
+                np.asarray(self.reconstruction.images[i].cam_from_world().matrix())
+                for i in triplet.image_ids
+            ]
+        )
+        points = np.array([self.reconstruction.points3D[int(p)].xyz for p in triplet.point_ids])
+        return poses, points
+
+    def information(self, which: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per triplet of ``which``: its information (m, 4, 4) and gradient (m, 4) on
+        (fx, fy, cx, cy) and its squared error (m,), px² (:mod:`intrinsics.polish.information`)."""
+        intrinsics = self.intrinsics()
+        parts = [
+            reduced_information(
+                intrinsics, *self.poses_and_points(self.triplets[p]), self.triplets[p].pixels
+            )
+            for p in which
+        ]
+        return (
+            np.stack([h for h, _, _ in parts]),
+            np.stack([g for _, g, _ in parts]),
+            np.array([c for _, _, c in parts]),
+        )
+
+    def _squared_errors(self, triplet: AdjustedTriplet) -> np.ndarray:
+        """(3, n) squared reprojection errors (px²) of a triplet through the shared
+        camera (its distortion included); inf behind a camera."""
+        poses, points = self.poses_and_points(triplet)
+        camera = self.camera
+        errors = np.empty((3, len(points)))
+        for view, pose in enumerate(poses):
+            local = points @ pose[:, :3].T + pose[:, 3]
+            in_front = local[:, 2] > 0
+            safe = np.where(in_front[:, None], local, [0.0, 0.0, 1.0])
+            pixels = np.asarray(camera.img_from_cam(np.ascontiguousarray(safe), False))
+            squared = np.sum((pixels - triplet.pixels[view]) ** 2, axis=1)
+            errors[view] = np.where(in_front & np.isfinite(squared), squared, np.inf)
+        return errors
+
+    def ratios(self) -> np.ndarray:
+        """λ of every triplet at the current cameras (inf where a point is behind a camera)."""
+        return np.array(
+            [
+                (float(self._squared_errors(triplet).sum()) - triplet.projective_cost)
+                / triplet.sigma2
+                for triplet in self.triplets
+            ]
+        )
+
+
+def camera_start(
+    free_parameters: FreeParameters, estimate: np.ndarray
+) -> tuple[str, bool, bool, np.ndarray] | None:
+    """The shared camera's setup (:func:`pycolmap_camera_setup`) and its starting
+    (fx, fy, cx, cy) in pixels (fy = fx for a single focal length); None where
+    pycolmap cannot express ``free_parameters``."""
+    setup = pycolmap_camera_setup(free_parameters)
+    if setup is None:
+        return None
+    intrinsics = np.asarray(estimate, dtype=float).copy()
+    if setup[0] == "SIMPLE_PINHOLE":
+        intrinsics[1] = intrinsics[0]
+    return (*setup, intrinsics)
+
+
+def refined_directions(
+    tied: bool, refine_focal: bool, refine_principal_point: bool, extra: int = 0
+) -> np.ndarray:
+    """A (4 + extra, k): (fx, fy, cx, cy, extra parameters) = A p for the k parameters an
+    adjustment refines: one focal length (``tied``) or two, the principal point, and
+    each of the ``extra`` (distortion) parameters."""
+    q = 4 + extra
+    unit = np.eye(q)
+    columns = []
+    if refine_focal:
+        columns += [unit[0] + unit[1]] if tied else [unit[0], unit[1]]
+    if refine_principal_point:
+        columns += [unit[2], unit[3]]
+    columns += [unit[4 + i] for i in range(extra)]
+    return np.array(columns).reshape(-1, q).T
+
+
+def shared_camera(
+    observed: list[Observed],
+    start: np.ndarray,
+    intrinsics: np.ndarray,
+    camera_model: str,
+    size: tuple[int, int],
+    workers: int | None = None,
+    keypoints: list[np.ndarray] | None = None,
+    distortion: np.ndarray | None = None,
+) -> SharedCamera | None:
+    """Every triplet whose calibrated cameras can be formed at K, in one reconstruction
+    (the cameras over ``workers`` threads; None: one per core). With ``keypoints`` (per
+    triplet of ``observed``, (3, n, 2) pixels) the triplets are observed there through
+    a camera whose distortion starts at ``distortion`` (:meth:`SharedCamera.add`)."""
+    shared = SharedCamera(intrinsics, camera_model, *size, distortion)
+    jobs = [(triplet, start, intrinsics) for triplet in observed]
+    seen = keypoints if keypoints is not None else [None] * len(observed)
+    cameras_of = map_jobs(_cameras_job, jobs, workers)
+    for triplet, cameras, at in zip(observed, cameras_of, seen, strict=True):
+        if cameras is not None and np.all(np.isfinite(cameras)):
+            shared.add(triplet, cameras, at)
+    return shared if shared.triplets else None
+
+
+def _cameras_job(job: tuple[Any, ...]) -> np.ndarray | None:
+    triplet, start, intrinsics = job
+    normalised = (triplet.pixels - intrinsics[2:]) / intrinsics[:2]
+    return calibrated_cameras(triplet.tensor, normalised, start, intrinsics)
