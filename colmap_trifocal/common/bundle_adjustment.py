@@ -6,6 +6,7 @@ import pycolmap
 
 
 def bundle_adjustment_options(
+    *,
     refine_focal_length: bool = True,
     refine_principal_point: bool = True,
     refine_extra_params: bool = False,

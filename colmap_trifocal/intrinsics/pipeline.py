@@ -38,7 +38,7 @@ from .assess.assessment import assess
 from .baselines.fundamental import calibrate_fundamental
 from .inputs.camera_input import CameraInput, camera_input
 from .inputs.triplet_selection import CameraTracks, select_camera_triplets
-from .lens.distortion import LensDistortion, LensStart, estimate_distortion
+from .lens.distortion import DistortionInput, LensDistortion, LensStart, estimate_distortion
 from .lens.search import LensSearchResult
 from .lens.warp import (
     bent_tracks_finding,
@@ -281,16 +281,18 @@ def _finish(
                 options.workers,
             )
         lens = estimate_distortion(
-            best.tensors.tensors,
-            by_images,
-            start,
-            polished.intrinsics,
-            fallback.free_parameters,
-            camera,
-            options.tau,
-            fallback.solution.inlier_tensors,
-            options.workers,
-            None if lens_start is None else lens_start(polished.intrinsics),
+            DistortionInput(
+                best.tensors.tensors,
+                by_images,
+                start,
+                polished.intrinsics,
+                fallback.free_parameters,
+                camera,
+                options.tau,
+                fallback.solution.inlier_tensors,
+                options.workers,
+                None if lens_start is None else lens_start(polished.intrinsics),
+            )
         )
     return Finished(best, polished, lens)
 

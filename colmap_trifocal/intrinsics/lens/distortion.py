@@ -30,7 +30,7 @@ convention (the centre of the top-left pixel at (0.5, 0.5)).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -45,7 +45,11 @@ from ..polish.calibrated_tracks import inlier_pixels, observed_tracks
 from ..polish.information import reduced_information
 from ..polish.shared_camera import (
     FUNCTION_TOLERANCE,
+    Agreement,
+    CameraSetup,
+    Refined,
     SharedCamera,
+    agree_and_adjust,
     pycolmap_camera_setup,
     refined_directions,
     shared_camera,
@@ -73,8 +77,6 @@ MIN_TRIPLETS = 2
 _RADIAL_MODELS = ("SIMPLE_RADIAL", "RADIAL")
 #: The model a pinhole camera's distortion is looked for with (its own focal lengths).
 _DETECTION_MODELS = {"SIMPLE_PINHOLE": "SIMPLE_RADIAL", "PINHOLE": "OPENCV"}
-#: Rounds of "choose the agreeing triplets at the camera, adjust them together".
-ROUNDS = 2
 #: Iterations of the pinhole fit C₀ at full precision; the rest to a relative
 #: precision ``C0_PRECISION`` of ``C₀ − C_k`` per iteration (Ceres' function tolerance).
 C0_ITERATIONS = 20
@@ -158,21 +160,11 @@ def distortion_model(camera: CameraInfo) -> str | None:
     return _DETECTION_MODELS.get(camera.model, camera.model)
 
 
-def estimate_distortion(
-    tensors: list[TripletTensor],
-    tracks: dict[tuple[int, int, int], np.ndarray],
-    start: np.ndarray,
-    estimate: np.ndarray,
-    free_parameters: FreeParameters,
-    camera: CameraInfo,
-    tau: float,
-    agreeing_tensors: np.ndarray | None = None,
-    workers: int | None = None,
-    observed: LensStart | None = None,
-) -> LensDistortion | None:
-    """The camera's distortion, focal length and principal point from its triplets.
+@dataclass(frozen=True)
+class DistortionInput:
+    """What the lens stage reads.
 
-    Args:
+    Attributes:
         tensors: the solve's tensors, normalised by ``start``.
         tracks: per triplet (image ids), its tracks (3, n, 2), pixels.
         start: the tensors' normalisation (fx0, fy0, cx0, cy0), pixels.
@@ -181,61 +173,135 @@ def estimate_distortion(
         camera: the stored camera (model, size, distortion).
         tau: the MSAC threshold; triplets with ``λ < τ²`` agree.
         agreeing_tensors: (n,) bool, the tensors that agree with ``estimate`` (the
-            screen reads only those; default all).
+            screen reads only those; None: all).
         workers: threads for the per-triplet work (None: one per core).
         observed: where ``tracks`` were warped from the raw keypoints (the lens
             search, :mod:`intrinsics.lens.search`): the raw tracks and the distortion the
             adjustment starts from; the distortion is then known to be there (no
             screen) and is adjusted from the raw tracks.
+    """
+
+    tensors: list[TripletTensor]
+    tracks: dict[tuple[int, int, int], np.ndarray]
+    start: np.ndarray
+    estimate: np.ndarray
+    free_parameters: FreeParameters
+    camera: CameraInfo
+    tau: float
+    agreeing_tensors: np.ndarray | None = None
+    workers: int | None = None
+    observed: LensStart | None = None
+
+
+@dataclass(frozen=True)
+class _Adjustment:
+    """The lens stage's adjustment: the shared camera, its model, what it refines, the
+    agreeing triplets, the cost without distortion and pycolmap's covariance."""
+
+    shared: SharedCamera
+    camera_model: str
+    refined: Refined
+    agreement: Agreement
+    without: float
+    covariance: pycolmap.BACovariance | None
+
+
+def estimate_distortion(lens: DistortionInput) -> LensDistortion | None:
+    """The camera's distortion, focal length and principal point from its triplets.
 
     Returns None when the distortion is taken as stored, the solve estimates nothing,
     fewer than ``MIN_TRIPLETS`` triplets agree, or Ceres fails.
     """
+    camera = lens.camera
     camera_model = distortion_model(camera)
-    if camera_model is None or not tensors:
+    if camera_model is None or not lens.tensors:
         return None
-    setup = _lens_setup(free_parameters)
+    setup = _lens_setup(lens.free_parameters)
     if setup is None:
         return None
-    _, refine_focal, refine_principal_point = setup
-    intrinsics = np.asarray(estimate, float).copy()
+    intrinsics = np.asarray(lens.estimate, float).copy()
     if camera.single_focal:
         intrinsics[1] = intrinsics[0]
-    size = (camera.width, camera.height)
     significance = SIGNIFICANCE if camera_model == camera.model else PINHOLE_SIGNIFICANCE
-    mask = np.ones(len(tensors), bool) if agreeing_tensors is None else agreeing_tensors
-    screen_tensors = [t for t, keep in zip(tensors, mask, strict=True) if keep]
-    screened = None
-    if observed is None:
-        screened = _screen(
-            screen_tensors, tracks, start, intrinsics, setup, camera, camera_model, workers
-        )
-    if screened is not None and screened < SCREEN_FACTOR * chi2.isf(significance, 1):
-        # Freeing k would not lower the cost by a fraction of what counts: not run.
-        zeros = np.zeros(len(CameraInfo.blank(camera_model).distortion))
-        return LensDistortion(
-            camera_model=camera_model,
-            intrinsics=intrinsics,
-            intrinsics_std=np.full(4, np.nan),
-            distortion=zeros,
-            distortion_std=np.full(len(zeros), np.nan),
-            statistic=screened,
-            threshold=float(chi2.isf(significance, len(zeros))),
-            agreeing=len(screen_tensors),
-            screened=True,
-        )
-    fits = observed_tracks(tensors, tracks, start, MAX_TRACKS, workers)
+    mask = (
+        np.ones(len(lens.tensors), bool) if lens.agreeing_tensors is None else lens.agreeing_tensors
+    )
+    if lens.observed is None:
+        screened = _screened(lens, mask, intrinsics, setup, camera_model, significance)
+        if screened is not None:
+            return screened
+    adjustment = _adjust(lens, mask, intrinsics, setup.refined, camera_model)
+    if adjustment is None:
+        return None
+    return _fitted(lens, adjustment, intrinsics, significance)
+
+
+def _screened(
+    lens: DistortionInput,
+    mask: np.ndarray,
+    intrinsics: np.ndarray,
+    setup: CameraSetup,
+    camera_model: str,
+    significance: float,
+) -> LensDistortion | None:
+    """The stage's result where the screen finds freeing k would not lower the cost by a
+    fraction of what counts (the adjustment is then not run), else None."""
+    screen_tensors = [t for t, keep in zip(lens.tensors, mask, strict=True) if keep]
+    screened = _screen(
+        screen_tensors,
+        lens.tracks,
+        lens.start,
+        intrinsics,
+        setup,
+        lens.camera,
+        camera_model,
+        lens.workers,
+    )
+    if screened is None or screened >= SCREEN_FACTOR * chi2.isf(significance, 1):
+        return None
+    zeros = np.zeros(len(CameraInfo.blank(camera_model).distortion))
+    return LensDistortion(
+        camera_model=camera_model,
+        intrinsics=intrinsics,
+        intrinsics_std=np.full(4, np.nan),
+        distortion=zeros,
+        distortion_std=np.full(len(zeros), np.nan),
+        statistic=screened,
+        threshold=float(chi2.isf(significance, len(zeros))),
+        agreeing=len(screen_tensors),
+        screened=True,
+    )
+
+
+def _adjust(
+    lens: DistortionInput,
+    mask: np.ndarray,
+    intrinsics: np.ndarray,
+    refined: Refined,
+    camera_model: str,
+) -> _Adjustment | None:
+    """The agreeing triplets adjusted with the camera's distortion free, the cost
+    without it, and the adjustment's covariance; None where too few triplets agree or
+    Ceres fails."""
+    camera, observed = lens.camera, lens.observed
+    fits = observed_tracks(lens.tensors, lens.tracks, lens.start, MAX_TRACKS, lens.workers)
     keypoints, distortion = None, None
     if observed is not None:
         keypoints = [inlier_pixels(fit.tensor, observed.tracks, MAX_TRACKS) for fit in fits]
         distortion = observed.distortion
     shared = shared_camera(
-        fits, start, intrinsics, camera_model, size, workers, keypoints, distortion
+        fits,
+        lens.start,
+        intrinsics,
+        camera_model,
+        (camera.width, camera.height),
+        lens.workers,
+        keypoints,
+        distortion,
     )
     if shared is None:
         return None
-    everything = list(range(len(shared.triplets)))
-    agreeing: list[int] = []
+    with_distortion = replace(refined, distortion=True)
     with keep_colmap_quiet():
         if observed is not None:
             # The start's distortion is the warp's nearest polynomial, not the
@@ -243,53 +309,61 @@ def estimate_distortion(
             # A triplet with a point behind its cameras has no calibrated fit to start
             # from; in a joint problem it keeps Ceres iterating for all to its bound;
             # the rounds below adjust it on its own.
-            valid = [p for p in everything if np.isfinite(shared.cost([p]))]
-            if len(valid) < MIN_TRIPLETS or not shared.adjust(
-                valid, refine_focal, refine_principal_point, True
-            ):
+            valid = [p for p in range(len(shared.triplets)) if np.isfinite(shared.cost([p]))]
+            if len(valid) < MIN_TRIPLETS or not shared.adjust(valid, with_distortion):
                 return None
-        misfit = False
-        for _ in range(ROUNDS):
-            stale = [p for p in everything if p not in agreeing]
-            if stale and not shared.adjust_each(stale):
-                return None
-            chosen = [p for p, ratio in enumerate(shared.ratios()) if ratio < tau**2]
-            if len(chosen) < MIN_TRIPLETS and observed is not None and not agreeing:
-                # No triplet fits the model as well as a projective camera: the model
-                # cannot hold this lens. The tensors that agreed on the warped tracks
-                # give its closest camera, which sets the reported std (below).
-                misfit = True
-                chosen = [p for p, t in enumerate(shared.triplets) if mask[t.index]]
-            if len(chosen) < MIN_TRIPLETS:
-                return None
-            if chosen == agreeing:
-                break
-            agreeing = chosen
-            if not shared.adjust(agreeing, refine_focal, refine_principal_point, True):
-                return None
-            if misfit:
-                break
-        without = _cost_without_distortion(shared, agreeing, refine_focal, refine_principal_point)
+        # No triplet fitting the model as well as a projective camera: the model cannot
+        # hold this lens. The tensors that agreed on the warped tracks give its closest
+        # camera, which sets the reported std (:func:`_fitted`).
+        agreement = agree_and_adjust(
+            shared,
+            lens.tau**2,
+            with_distortion,
+            minimum=MIN_TRIPLETS,
+            fallback=None
+            if observed is None
+            else (lambda: [p for p, t in enumerate(shared.triplets) if mask[t.index]]),
+        )
+        if agreement is None:
+            return None
+        agreeing = agreement.agreeing
+        without = _cost_without_distortion(shared, agreeing, refined)
         # At the optimum already: the covariance of the adjustment with its gauge fixed.
-        adjuster = shared.adjuster(agreeing, refine_focal, refine_principal_point, True, True)
+        adjuster = shared.adjuster(agreeing, with_distortion, fix_scale=True)
         covariance = pycolmap.estimate_ba_covariance(
             pycolmap.BACovarianceOptions(), shared.reconstruction, adjuster
         )
+    return _Adjustment(shared, camera_model, refined, agreement, without, covariance)
+
+
+def _fitted(
+    lens: DistortionInput, adjustment: _Adjustment, intrinsics: np.ndarray, significance: float
+) -> LensDistortion:
+    """The stage's result from its adjustment: the fitted camera, its std (pycolmap's
+    covariance and the image jackknife, the larger), the likelihood-ratio statistic."""
+    camera, observed = lens.camera, lens.observed
+    shared, agreeing = adjustment.shared, adjustment.agreement.agreeing
+    misfit = adjustment.agreement.fallback
+    refined = adjustment.refined
     adjusted = shared.camera
     params = np.asarray(adjusted.params, dtype=float)
     with_distortion = shared.cost(agreeing)
     extra = list(adjusted.extra_params_idxs())
     points = sum(len(shared.triplets[p].point_ids) for p in agreeing)
-    free = len(params) if refine_principal_point else len(params) - 2
+    free = len(params) if refined.principal_point else len(params) - 2
     variance = with_distortion / max(6 * points - (3 * points + 11 * len(agreeing)) - free, 1)
-    refined = (list(adjusted.focal_length_idxs()) if refine_focal else []) + (
-        list(adjusted.principal_point_idxs()) if refine_principal_point else []
+    refined_idxs = (list(adjusted.focal_length_idxs()) if refined.focal else []) + (
+        list(adjusted.principal_point_idxs()) if refined.principal_point else []
     )
-    params_std = _params_std(covariance, adjusted, variance, sorted(refined + extra))
-    fitted = CameraInfo(camera.camera_id, camera_model, *size, params)
+    params_std = _params_std(
+        adjustment.covariance, adjusted, variance, sorted(refined_idxs + extra)
+    )
+    fitted = CameraInfo(
+        camera.camera_id, adjustment.camera_model, camera.width, camera.height, params
+    )
     intrinsics_std = _intrinsics_std(fitted, params_std)
     distortion_std = params_std[extra]
-    jackknife = _jackknife_std(shared, agreeing, fitted, tensors, refine_principal_point)
+    jackknife = _jackknife_std(shared, agreeing, fitted, lens.tensors, refined.principal_point)
     if jackknife is not None:
         intrinsics_std = np.maximum(intrinsics_std, jackknife[:4])
         distortion_std = np.maximum(distortion_std, jackknife[4:])
@@ -302,19 +376,19 @@ def estimate_distortion(
         intrinsics_std = np.maximum(intrinsics_std, np.abs(fitted.intrinsics - intrinsics))
         distortion_std = np.maximum(distortion_std, np.abs(params[extra] - observed.distortion))
     return LensDistortion(
-        camera_model=camera_model,
+        camera_model=adjustment.camera_model,
         intrinsics=reported,
         intrinsics_std=intrinsics_std,
         distortion=distortion_reported,
         distortion_std=distortion_std,
-        statistic=(without - with_distortion) / variance,
+        statistic=(adjustment.without - with_distortion) / variance,
         threshold=float(chi2.isf(significance, len(extra))),
         agreeing=len(agreeing),
         misfit=misfit,
     )
 
 
-def _lens_setup(free_parameters: FreeParameters) -> tuple[str, bool, bool] | None:
+def _lens_setup(free_parameters: FreeParameters) -> CameraSetup | None:
     """(pinhole model, refine the focal length, refine the principal point) of the
     adjustment, None where the solve estimates nothing.
 
@@ -329,12 +403,10 @@ def _lens_setup(free_parameters: FreeParameters) -> tuple[str, bool, bool] | Non
     if setup is not None:
         return setup
     model = "SIMPLE_PINHOLE" if free_parameters.focal == "tied" else "PINHOLE"
-    return model, free_parameters.focal != "held", True
+    return CameraSetup(model, Refined(focal=free_parameters.focal != "held", principal_point=True))
 
 
-def _cost_without_distortion(
-    shared: SharedCamera, agreeing: list[int], refine_focal: bool, refine_principal_point: bool
-) -> float:
+def _cost_without_distortion(shared: SharedCamera, agreeing: list[int], refined: Refined) -> float:
     """C₀: the agreeing triplets' squared error (px²) adjusted with the distortion held
     at 0, on a copy of the reconstruction (itself at the distortion's optimum).
 
@@ -353,9 +425,7 @@ def _cost_without_distortion(
     shared.reconstruction = copy
     try:
         copy.cameras[camera.camera_id].params = params.tolist()
-        first = shared.solve(
-            agreeing, refine_focal, refine_principal_point, max_iterations=C0_ITERATIONS
-        )
+        first = shared.solve(agreeing, refined, max_iterations=C0_ITERATIONS)
         if not first.is_solution_usable():
             return float("nan")
         cost = shared.cost(agreeing)
@@ -364,9 +434,7 @@ def _cost_without_distortion(
         tolerance = FUNCTION_TOLERANCE
         if np.isfinite(cost) and cost > 0:
             tolerance = max(C0_PRECISION * max(cost - with_distortion, 0.0) / cost, tolerance)
-        rest = shared.solve(
-            agreeing, refine_focal, refine_principal_point, function_tolerance=tolerance
-        )
+        rest = shared.solve(agreeing, refined, function_tolerance=tolerance)
         return shared.cost(agreeing) if rest.is_solution_usable() else float("nan")
     finally:
         shared.reconstruction = original
@@ -423,7 +491,8 @@ def _jackknife_std(
         poses, points = shared.poses_and_points(triplet)
         parts.append(reduced_information(fitted.intrinsics, poses, points, triplet.pixels, radial))
     # The radial models have a single focal length, refined with the distortion.
-    free = refined_directions(True, True, refine_principal_point, extra=len(radial))
+    refined = Refined(focal=True, principal_point=refine_principal_point)
+    free = refined_directions(refined, tied=True, extra=len(radial))
     groups = [tensors[shared.triplets[p].index].image_ids for p in agreeing]
     return one_step_jackknife_std(
         np.r_[fitted.intrinsics, radial],
@@ -439,7 +508,7 @@ def _screen(
     tracks: dict[tuple[int, int, int], np.ndarray],
     start: np.ndarray,
     intrinsics: np.ndarray,
-    setup: tuple[str, bool, bool],
+    setup: CameraSetup,
     camera: CameraInfo,
     camera_model: str,
     workers: int | None = None,
@@ -453,7 +522,6 @@ def _screen(
     what the intrinsics alone take, over σ². Milliseconds per tensor. None where it
     cannot be formed.
     """
-    _, refine_focal, refine_principal_point = setup
     parts = [
         part
         for part in calibrated_information(
@@ -467,7 +535,7 @@ def _screen(
     observations = sum(6 * part.num_tracks for part in parts)
     unknowns = sum(3 * part.num_tracks + 11 for part in parts)
     tied = camera_model in _RADIAL_MODELS or camera.single_focal
-    with_k = refined_directions(tied, refine_focal, refine_principal_point, extra=1)
+    with_k = refined_directions(setup.refined, tied=tied, extra=1)
     if observations <= unknowns + with_k.shape[1]:
         return None
     variance = cost / (observations - unknowns - with_k.shape[1])

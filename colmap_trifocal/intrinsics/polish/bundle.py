@@ -68,10 +68,7 @@ from .calibrated_tracks import (
     triangulate,
 )
 from .information import reduced_information
-from .shared_camera import camera_start, refined_directions, shared_camera
-
-#: Rounds of "choose the agreeing triplets at K, adjust them together".
-ROUNDS = 2
+from .shared_camera import agree_and_adjust, camera_start, refined_directions, shared_camera
 
 
 @dataclass
@@ -132,37 +129,19 @@ def polish_intrinsics(
     start_values = camera_start(free_parameters, estimate)
     if start_values is None or not tensors:
         return None
-    camera_model, refine_focal, refine_principal_point, intrinsics = start_values
+    setup, intrinsics = start_values
     limit = tau**2
     observed = observed_tracks(tensors, tracks, start, workers=workers)
-    shared = shared_camera(observed, start, intrinsics, camera_model, size, workers)
+    shared = shared_camera(observed, start, intrinsics, setup.model, size, workers)
     if shared is None:
         return None
-    everything = list(range(len(shared.triplets)))
-    # Each round: the triplets not adjusted with the current K get their poses and
-    # points adjusted at it (the first round: all), which gives every triplet's λ at
-    # K; the agreeing ones are then adjusted together with K free. A triplet adjusted
-    # with K free is already at its optimum for that K, and when the agreeing set
-    # does not change, neither does K: the rounds stop there.
-    agreeing: list[int] = []
-    for _ in range(ROUNDS):
-        stale = [p for p in everything if p not in agreeing]
-        if stale and not shared.adjust_each(stale):
-            return None
-        before = shared.ratios()
-        chosen = [p for p, ratio in enumerate(before) if ratio < limit]
-        if not chosen:
-            return None
-        if chosen == agreeing:
-            break
-        agreeing = chosen
-        if not shared.adjust(agreeing, refine_focal, refine_principal_point):
-            return None
-        intrinsics = shared.intrinsics()
+    agreement = agree_and_adjust(shared, limit, setup.refined)
+    if agreement is None:
+        return None
+    agreeing, before = agreement.agreeing, agreement.ratios
+    intrinsics = shared.intrinsics()
     information, gradients, costs = shared.information(agreeing)
-    free = refined_directions(
-        camera_model == "SIMPLE_PINHOLE", refine_focal, refine_principal_point
-    )
+    free = refined_directions(setup.refined, tied=setup.tied)
     observations = sum(6 * len(shared.triplets[p].point_ids) for p in agreeing)
     unknowns = sum(3 * len(shared.triplets[p].point_ids) + 11 for p in agreeing)
     variance = float(costs.sum()) / max(observations - unknowns - free.shape[1], 1)
@@ -222,13 +201,11 @@ def predict_polish(
     start_values = camera_start(free_parameters, estimate)
     if start_values is None or not tensors:
         return None
-    camera_model, refine_focal, refine_principal_point, intrinsics = start_values
+    setup, intrinsics = start_values
     parts = calibrated_information(tensors, tracks, start, intrinsics, workers=workers)
     if not parts:
         return None
-    free = refined_directions(
-        camera_model == "SIMPLE_PINHOLE", refine_focal, refine_principal_point
-    )
+    free = refined_directions(setup.refined, tied=setup.tied)
     information = np.stack([part.information for part in parts])
     gradients = np.stack([part.gradient for part in parts])
     moved = gauss_newton_step(intrinsics, information.sum(axis=0), gradients.sum(axis=0), free)

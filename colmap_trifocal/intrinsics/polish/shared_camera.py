@@ -12,6 +12,7 @@ Pixels in COLMAP's convention (the centre of the top-left pixel at (0.5, 0.5)).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -36,9 +37,35 @@ GRADIENT_TOLERANCE = 1e-14
 MAX_ITERATIONS = 200
 
 
-def pycolmap_camera_setup(free_parameters: FreeParameters) -> tuple[str, bool, bool] | None:
-    """(COLMAP camera model, refine focal length, refine principal point) that estimate
-    ``free_parameters``.
+@dataclass(frozen=True)
+class Refined:
+    """What an adjustment of the shared camera refines besides poses and points."""
+
+    focal: bool = False
+    principal_point: bool = False
+    distortion: bool = False
+
+
+#: Poses and points only: the camera held.
+NOTHING = Refined()
+
+
+@dataclass(frozen=True)
+class CameraSetup:
+    """The shared camera's COLMAP model (PINHOLE, or SIMPLE_PINHOLE for a tied focal
+    length) and what its adjustment refines."""
+
+    model: str
+    refined: Refined
+
+    @property
+    def tied(self) -> bool:
+        """One focal length for both axes."""
+        return self.model == "SIMPLE_PINHOLE"
+
+
+def pycolmap_camera_setup(free_parameters: FreeParameters) -> CameraSetup | None:
+    """The shared camera that estimates ``free_parameters``.
 
     None when pycolmap cannot express it (one principal-point coordinate held) or
     nothing is estimated.
@@ -46,7 +73,7 @@ def pycolmap_camera_setup(free_parameters: FreeParameters) -> tuple[str, bool, b
     if free_parameters.cx != free_parameters.cy or free_parameters.dimension == 0:
         return None
     camera_model = "SIMPLE_PINHOLE" if free_parameters.focal == "tied" else "PINHOLE"
-    return camera_model, free_parameters.focal != "held", free_parameters.cx
+    return CameraSetup(camera_model, Refined(free_parameters.focal != "held", free_parameters.cx))
 
 
 @dataclass
@@ -149,9 +176,8 @@ class SharedCamera:
     def adjuster(
         self,
         which: list[int],
-        refine_focal: bool,
-        refine_principal_point: bool,
-        refine_distortion: bool = False,
+        refined: Refined,
+        *,
         fix_scale: bool = False,
         function_tolerance: float = FUNCTION_TOLERANCE,
         max_iterations: int = MAX_ITERATIONS,
@@ -172,12 +198,12 @@ class SharedCamera:
             config.set_constant_rig_from_world_pose(first.frame_id)
             if fix_scale:
                 config.add_constant_point(int(triplet.point_ids[0]))
-        if not (refine_focal or refine_principal_point or refine_distortion):
+        if not (refined.focal or refined.principal_point or refined.distortion):
             config.set_constant_cam_intrinsics(CAMERA_ID)
         options = bundle_adjustment_options(
-            refine_focal,
-            refine_principal_point,
-            refine_distortion,
+            refine_focal_length=refined.focal,
+            refine_principal_point=refined.principal_point,
+            refine_extra_params=refined.distortion,
             function_tolerance=function_tolerance,
             gradient_tolerance=GRADIENT_TOLERANCE,
             max_iterations=max_iterations,
@@ -185,24 +211,16 @@ class SharedCamera:
         )
         return pycolmap.create_default_ceres_bundle_adjuster(options, config, self.reconstruction)
 
-    def adjust(
-        self,
-        which: list[int],
-        refine_focal: bool,
-        refine_principal_point: bool,
-        refine_distortion: bool = False,
-    ) -> bool:
+    def adjust(self, which: list[int], refined: Refined) -> bool:
         """Bundle-adjust the triplets ``which`` in place (:meth:`adjuster`); False when
         Ceres finds no usable solution."""
-        summary = self.solve(which, refine_focal, refine_principal_point, refine_distortion)
-        return bool(summary.is_solution_usable())
+        return bool(self.solve(which, refined).is_solution_usable())
 
     def solve(
         self,
         which: list[int],
-        refine_focal: bool,
-        refine_principal_point: bool,
-        refine_distortion: bool = False,
+        refined: Refined,
+        *,
         function_tolerance: float = FUNCTION_TOLERANCE,
         max_iterations: int = MAX_ITERATIONS,
     ) -> pycolmap.BundleAdjustmentSummary:
@@ -211,9 +229,7 @@ class SharedCamera:
         with keep_colmap_quiet():
             adjuster = self.adjuster(
                 which,
-                refine_focal,
-                refine_principal_point,
-                refine_distortion,
+                refined,
                 function_tolerance=function_tolerance,
                 max_iterations=max_iterations,
             )
@@ -224,7 +240,7 @@ class SharedCamera:
         is, one problem per triplet (they share nothing while the camera is held, and
         one triplet far from the camera would keep a joint problem iterating for all);
         False when Ceres finds no usable solution for any of them."""
-        usable = [self.adjust([position], False, False) for position in which]
+        usable = [self.adjust([position], NOTHING) for position in which]
         return any(usable)
 
     def poses_and_points(self, triplet: AdjustedTriplet) -> tuple[np.ndarray, np.ndarray]:
@@ -282,7 +298,7 @@ class SharedCamera:
 
 def camera_start(
     free_parameters: FreeParameters, estimate: np.ndarray
-) -> tuple[str, bool, bool, np.ndarray] | None:
+) -> tuple[CameraSetup, np.ndarray] | None:
     """The shared camera's setup (:func:`pycolmap_camera_setup`) and its starting
     (fx, fy, cx, cy) in pixels (fy = fx for a single focal length); None where
     pycolmap cannot express ``free_parameters``."""
@@ -290,23 +306,21 @@ def camera_start(
     if setup is None:
         return None
     intrinsics = np.asarray(estimate, dtype=float).copy()
-    if setup[0] == "SIMPLE_PINHOLE":
+    if setup.tied:
         intrinsics[1] = intrinsics[0]
-    return (*setup, intrinsics)
+    return setup, intrinsics
 
 
-def refined_directions(
-    tied: bool, refine_focal: bool, refine_principal_point: bool, extra: int = 0
-) -> np.ndarray:
+def refined_directions(refined: Refined, *, tied: bool, extra: int = 0) -> np.ndarray:
     """A (4 + extra, k): (fx, fy, cx, cy, extra parameters) = A p for the k parameters an
     adjustment refines: one focal length (``tied``) or two, the principal point, and
     each of the ``extra`` (distortion) parameters."""
     q = 4 + extra
     unit = np.eye(q)
     columns = []
-    if refine_focal:
+    if refined.focal:
         columns += [unit[0] + unit[1]] if tied else [unit[0], unit[1]]
-    if refine_principal_point:
+    if refined.principal_point:
         columns += [unit[2], unit[3]]
     columns += [unit[4 + i] for i in range(extra)]
     return np.array(columns).reshape(-1, q).T
@@ -340,3 +354,63 @@ def _cameras_job(job: tuple[Any, ...]) -> np.ndarray | None:
     triplet, start, intrinsics = job
     normalised = (triplet.pixels - intrinsics[2:]) / intrinsics[:2]
     return calibrated_cameras(triplet.tensor, normalised, start, intrinsics)
+
+
+#: Rounds of "choose the agreeing triplets at K, adjust them together".
+ROUNDS = 2
+
+
+@dataclass
+class Agreement:
+    """The triplets that agree with the shared camera, adjusted together with it.
+
+    Attributes:
+        agreeing: their positions in ``shared.triplets``.
+        ratios: λ of every triplet at the start of the last round.
+        fallback: the agreeing set is the fallback's (too few triplets agreed).
+    """
+
+    agreeing: list[int]
+    ratios: np.ndarray
+    fallback: bool = False
+
+
+def agree_and_adjust(
+    shared: SharedCamera,
+    limit: float,
+    refined: Refined,
+    minimum: int = 1,
+    fallback: Callable[[], list[int]] | None = None,
+) -> Agreement | None:
+    """The rounds of the polish and the lens stage, ``ROUNDS`` at most.
+
+    Each round: the triplets not adjusted with the current K get their poses and points
+    adjusted at it (the first round: all), which gives every triplet's λ at K; those
+    with ``λ < limit`` are then adjusted together with the camera refined as
+    ``refined``. A triplet adjusted with K free is already at its optimum for that K,
+    and when the agreeing set does not change, neither does K: the rounds stop there.
+    Where fewer than ``minimum`` agree in the first round, ``fallback`` (if given)
+    chooses them instead, and the rounds end after their adjustment. None where Ceres
+    fails or fewer than ``minimum`` triplets remain.
+    """
+    everything = range(len(shared.triplets))
+    agreement = Agreement([], np.array([]))
+    for _ in range(ROUNDS):
+        stale = [p for p in everything if p not in agreement.agreeing]
+        if stale and not shared.adjust_each(stale):
+            return None
+        ratios = shared.ratios()
+        chosen = [p for p, ratio in enumerate(ratios) if ratio < limit]
+        used = agreement.fallback
+        if len(chosen) < minimum and fallback is not None and not agreement.agreeing:
+            used, chosen = True, fallback()
+        if len(chosen) < minimum:
+            return None
+        if chosen == agreement.agreeing:
+            return Agreement(chosen, ratios, used)
+        agreement = Agreement(chosen, ratios, used)
+        if not shared.adjust(chosen, refined):
+            return None
+        if used:
+            break
+    return agreement
