@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from colmap_trifocal.intrinsics.solve.constraints import intrinsics_to_theta, theta_to_intrinsics
 from colmap_trifocal.intrinsics.solve.observability import (
     MAX_RELATIVE_STD,
     effective_std,
@@ -20,6 +19,7 @@ from colmap_trifocal.intrinsics.solve.parametrization import (
     FreeParameters,
     candidate_free_parameters,
 )
+from colmap_trifocal.intrinsics.solve.theta import intrinsics_to_theta, theta_to_intrinsics
 from colmap_trifocal.intrinsics.solve.uncertainty import (
     combined_information,
     image_groups,

@@ -28,11 +28,8 @@ from colmap_trifocal.geometry.trifocal import (
     normalize_tensor,
     tensor_from_cameras,
 )
-from colmap_trifocal.intrinsics.solve.constraints import (
-    MSAC_TAU,
-    ConstraintProblem,
-    intrinsics_to_theta,
-)
+from colmap_trifocal.intrinsics.solve.constraints import MSAC_TAU, ConstraintProblem
+from colmap_trifocal.intrinsics.solve.theta import intrinsics_to_theta
 from colmap_trifocal.synthetic.database import scene_contents
 from colmap_trifocal.synthetic.facade import facade_scene
 

@@ -16,12 +16,11 @@ from colmap_trifocal.intrinsics.solve.constraints import (
     MSAC_TAU,
     ConstraintProblem,
     ConstraintSolution,
-    intrinsics_to_theta,
     msac_score,
     solve,
-    theta_to_intrinsics,
 )
 from colmap_trifocal.intrinsics.solve.parametrization import SINGLE_FOCAL
+from colmap_trifocal.intrinsics.solve.theta import intrinsics_to_theta, theta_to_intrinsics
 from colmap_trifocal.synthetic.scenes import make_scene, perturbed_prior, triplet_tensors
 
 METHODS = ("direct", "msac", "msac-opt")

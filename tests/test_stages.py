@@ -17,7 +17,8 @@ from colmap_trifocal.common.timing import STAGES
 from colmap_trifocal.geometry.tensor_estimation import estimate_triplet_tensor
 from colmap_trifocal.geometry.trifocal import intrinsics_matrix
 from colmap_trifocal.intrinsics.polish.information import reduced_information
-from colmap_trifocal.intrinsics.solve.constraints import ConstraintProblem, intrinsics_to_theta
+from colmap_trifocal.intrinsics.solve.constraints import ConstraintProblem
+from colmap_trifocal.intrinsics.solve.theta import intrinsics_to_theta
 from colmap_trifocal.intrinsics.tensors.estimator import MAX_STARTS_PER_TRIPLET
 from colmap_trifocal.synthetic.database import scene_contents
 from colmap_trifocal.synthetic.demo import make_demo_database

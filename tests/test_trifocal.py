@@ -225,7 +225,7 @@ def test_constraints_cannot_tell_the_sign_of_a_focal_length() -> None:
     """fx → −fx or fy → −fy leaves every constraint value unchanged (any tensor, not only
     calibrated ones), so a solve that crosses zero found the same K:
     :func:`fold_focal_sign` returns it with positive focal lengths."""
-    from colmap_trifocal.intrinsics.solve.constraints import fold_focal_sign
+    from colmap_trifocal.intrinsics.solve.theta import fold_focal_sign
 
     T = np.random.default_rng(0).standard_normal((3, 3, 3))
     params = np.array([700.0, 690.0, 600.0, 180.0])

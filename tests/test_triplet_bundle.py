@@ -9,7 +9,7 @@ from colmap_trifocal import CalibrationOptions, calibrate_contents
 from colmap_trifocal.geometry.tensor_estimation import TripletTensor
 from colmap_trifocal.geometry.trifocal import normalize_tensor, tensor_from_cameras
 from colmap_trifocal.intrinsics.polish.calibrated_tracks import calibrated_cameras, triangulate
-from colmap_trifocal.intrinsics.polish.shared_camera import pycolmap_camera_setup
+from colmap_trifocal.intrinsics.polish.camera_setup import pycolmap_camera_setup
 from colmap_trifocal.intrinsics.solve.parametrization import FULL, SINGLE_FOCAL, FreeParameters
 from colmap_trifocal.synthetic.database import scene_contents
 from colmap_trifocal.synthetic.facade import facade_scene

@@ -19,13 +19,10 @@ from ..inputs.camera_input import CameraInput
 from ..lens.distortion import LensDistortion
 from ..polish.stage import Polished
 from ..results import PARAMETER_NAMES, CameraCalibration, TripletReport, finite_or_none
-from ..solve.constraints import (
-    ConstraintSolution,
-    FallbackSolution,
-    fold_focal_sign,
-    theta_to_intrinsics,
-)
+from ..solve.constraints import ConstraintSolution
+from ..solve.fallback import FallbackSolution
 from ..solve.parametrization import FreeParameters
+from ..solve.theta import fold_focal_sign, theta_to_intrinsics
 from ..start.candidates import StartCandidate
 from ..start.focal_search import FocalSearchResult
 from .diagnosis import diagnose

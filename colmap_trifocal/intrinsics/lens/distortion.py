@@ -40,22 +40,23 @@ from scipy.stats import chi2
 from ...common.log import keep_colmap_quiet
 from ...database.cameras import CameraInfo
 from ...geometry.tensor_estimation import TripletTensor
-from ..polish.bundle import calibrated_information
 from ..polish.calibrated_tracks import inlier_pixels, observed_tracks
-from ..polish.information import reduced_information
+from ..polish.camera_setup import CameraSetup, Refined, pycolmap_camera_setup
 from ..polish.shared_camera import (
-    FUNCTION_TOLERANCE,
     Agreement,
-    CameraSetup,
-    Refined,
     SharedCamera,
     agree_and_adjust,
-    pycolmap_camera_setup,
-    refined_directions,
     shared_camera,
 )
 from ..solve.parametrization import FreeParameters
-from ..solve.uncertainty import one_step_jackknife_std
+from .fit_statistics import (
+    MAX_TRACKS,
+    camera_params_std,
+    cost_without_distortion,
+    intrinsics_std_of,
+    jackknife_std,
+    screen_statistic,
+)
 
 #: Probability that the test finds distortion in an undistorted lens (χ² tail): low
 #: power costs more than a false alarm, whose joint estimate is still unbiased and
@@ -67,20 +68,10 @@ PINHOLE_SIGNIFICANCE = 1e-6
 #: The screen skips the adjustment where one Gauss–Newton step predicts a likelihood
 #: ratio below this fraction of the test's one-parameter threshold.
 SCREEN_FACTOR = 0.5
-#: Tracks per triplet at most (evenly spaced among its inliers): the distortion is
-#: read from where the tracks lie across the image, which 300 per triplet cover.
-MAX_TRACKS = 300
 #: Triplets that must agree before the distortion is estimated at all.
 MIN_TRIPLETS = 2
-#: Models whose distortion is radial only, with a single focal length: the jackknife
-#: of :func:`intrinsics.polish.information.reduced_information` applies.
-_RADIAL_MODELS = ("SIMPLE_RADIAL", "RADIAL")
 #: The model a pinhole camera's distortion is looked for with (its own focal lengths).
 _DETECTION_MODELS = {"SIMPLE_PINHOLE": "SIMPLE_RADIAL", "PINHOLE": "OPENCV"}
-#: Iterations of the pinhole fit C₀ at full precision; the rest to a relative
-#: precision ``C0_PRECISION`` of ``C₀ − C_k`` per iteration (Ceres' function tolerance).
-C0_ITERATIONS = 20
-C0_PRECISION = 1e-4
 
 
 @dataclass
@@ -247,7 +238,7 @@ def _screened(
     """The stage's result where the screen finds freeing k would not lower the cost by a
     fraction of what counts (the adjustment is then not run), else None."""
     screen_tensors = [t for t, keep in zip(lens.tensors, mask, strict=True) if keep]
-    screened = _screen(
+    screened = screen_statistic(
         screen_tensors,
         lens.tracks,
         lens.start,
@@ -327,7 +318,7 @@ def _adjust(
         if agreement is None:
             return None
         agreeing = agreement.agreeing
-        without = _cost_without_distortion(shared, agreeing, refined)
+        without = cost_without_distortion(shared, agreeing, refined)
         # At the optimum already: the covariance of the adjustment with its gauge fixed.
         adjuster = shared.adjuster(agreeing, with_distortion, fix_scale=True)
         covariance = pycolmap.estimate_ba_covariance(
@@ -355,15 +346,15 @@ def _fitted(
     refined_idxs = (list(adjusted.focal_length_idxs()) if refined.focal else []) + (
         list(adjusted.principal_point_idxs()) if refined.principal_point else []
     )
-    params_std = _params_std(
+    params_std = camera_params_std(
         adjustment.covariance, adjusted, variance, sorted(refined_idxs + extra)
     )
     fitted = CameraInfo(
         camera.camera_id, adjustment.camera_model, camera.width, camera.height, params
     )
-    intrinsics_std = _intrinsics_std(fitted, params_std)
+    intrinsics_std = intrinsics_std_of(fitted, params_std)
     distortion_std = params_std[extra]
-    jackknife = _jackknife_std(shared, agreeing, fitted, lens.tensors, refined.principal_point)
+    jackknife = jackknife_std(shared, agreeing, fitted, lens.tensors, refined.principal_point)
     if jackknife is not None:
         intrinsics_std = np.maximum(intrinsics_std, jackknife[:4])
         distortion_std = np.maximum(distortion_std, jackknife[4:])
@@ -404,148 +395,3 @@ def _lens_setup(free_parameters: FreeParameters) -> CameraSetup | None:
         return setup
     model = "SIMPLE_PINHOLE" if free_parameters.focal == "tied" else "PINHOLE"
     return CameraSetup(model, Refined(focal=free_parameters.focal != "held", principal_point=True))
-
-
-def _cost_without_distortion(shared: SharedCamera, agreeing: list[int], refined: Refined) -> float:
-    """C₀: the agreeing triplets' squared error (px²) adjusted with the distortion held
-    at 0, on a copy of the reconstruction (itself at the distortion's optimum).
-
-    C₀ is only read through ``C₀ − C_k``: after ``C0_ITERATIONS`` iterations the rest
-    runs to a relative precision ``C0_PRECISION`` of that difference, not of C₀. A
-    strong lens's pinhole fit crawls along a long valley (its focal length moves far
-    from the camera's) for changes far below what the test can see.
-    """
-    copy = pycolmap.Reconstruction(shared.reconstruction)
-    camera = shared.camera
-    with_distortion = shared.cost(agreeing)
-    held = CameraInfo.from_pycolmap(camera)
-    params = held.params.copy()
-    params[list(camera.extra_params_idxs())] = 0.0
-    original = shared.reconstruction
-    shared.reconstruction = copy
-    try:
-        copy.cameras[camera.camera_id].params = params.tolist()
-        first = shared.solve(agreeing, refined, max_iterations=C0_ITERATIONS)
-        if not first.is_solution_usable():
-            return float("nan")
-        cost = shared.cost(agreeing)
-        if first.termination_type != pycolmap.BundleAdjustmentTerminationType.NO_CONVERGENCE:
-            return cost
-        tolerance = FUNCTION_TOLERANCE
-        if np.isfinite(cost) and cost > 0:
-            tolerance = max(C0_PRECISION * max(cost - with_distortion, 0.0) / cost, tolerance)
-        rest = shared.solve(agreeing, refined, function_tolerance=tolerance)
-        return shared.cost(agreeing) if rest.is_solution_usable() else float("nan")
-    finally:
-        shared.reconstruction = original
-
-
-def _params_std(
-    covariance: pycolmap.BACovariance | None,
-    camera: pycolmap.Camera,
-    variance: float,
-    refined: list[int],
-) -> np.ndarray:
-    """Std of every camera parameter (COLMAP's order) from pycolmap's covariance of the
-    adjustment (unit weights) scaled by the residual variance: the ``refined``
-    parameters' (indices, ascending: pycolmap's block covers those), 0 for the held
-    ones; inf where unavailable."""
-    count = len(camera.params)
-    if covariance is None:
-        return np.full(count, np.inf)
-    block = covariance.get_other_params_cov(camera.params)
-    if block is None:
-        return np.full(count, np.inf)
-    block = np.asarray(block, dtype=float)
-    if block.shape != (len(refined), len(refined)):
-        return np.full(count, np.inf)
-    std = np.zeros(count)
-    std[refined] = np.sqrt(np.clip(np.diag(block), 0.0, None) * variance)
-    return std
-
-
-def _intrinsics_std(camera: CameraInfo, params_std: np.ndarray) -> np.ndarray:
-    """(4,) std of (fx, fy, cx, cy) in pixels from the parameters' std."""
-    return CameraInfo(
-        camera.camera_id, camera.model, camera.width, camera.height, params_std
-    ).intrinsics
-
-
-def _jackknife_std(
-    shared: SharedCamera,
-    agreeing: list[int],
-    fitted: CameraInfo,
-    tensors: list[TripletTensor],
-    refine_principal_point: bool,
-) -> np.ndarray | None:
-    """(4 + m,) delete-a-group-of-images jackknife std of (fx, fy, cx, cy, k1[, k2]) of
-    a ``SIMPLE_RADIAL`` / ``RADIAL`` camera (pixels; k unitless): one Gauss–Newton step
-    per replicate on the triplets' Schur complements (:mod:`intrinsics.polish.information`).
-    None for other models or too few image groups."""
-    if fitted.model not in _RADIAL_MODELS:
-        return None
-    radial = fitted.distortion
-    parts = []
-    for position in agreeing:
-        triplet = shared.triplets[position]
-        poses, points = shared.poses_and_points(triplet)
-        parts.append(reduced_information(fitted.intrinsics, poses, points, triplet.pixels, radial))
-    # The radial models have a single focal length, refined with the distortion.
-    refined = Refined(focal=True, principal_point=refine_principal_point)
-    free = refined_directions(refined, tied=True, extra=len(radial))
-    groups = [tensors[shared.triplets[p].index].image_ids for p in agreeing]
-    return one_step_jackknife_std(
-        np.r_[fitted.intrinsics, radial],
-        np.stack([h for h, _, _ in parts]),
-        np.stack([g for _, g, _ in parts]),
-        free,
-        groups,
-    )
-
-
-def _screen(
-    tensors: list[TripletTensor],
-    tracks: dict[tuple[int, int, int], np.ndarray],
-    start: np.ndarray,
-    intrinsics: np.ndarray,
-    setup: CameraSetup,
-    camera: CameraInfo,
-    camera_model: str,
-    workers: int | None = None,
-) -> float | None:
-    """The likelihood ratio of freeing k1, predicted without an adjustment (a score test).
-
-    Each tensor's calibrated cameras at ``intrinsics`` and its triangulated tracks give
-    its Schur complement and gradient on (fx, fy, cx, cy, k1) at k1 = 0
-    (:func:`intrinsics.polish.information.reduced_information`); summed over the tensors, one
-    Gauss–Newton step predicts how much the squared error falls with k1 free beyond
-    what the intrinsics alone take, over σ². Milliseconds per tensor. None where it
-    cannot be formed.
-    """
-    parts = [
-        part
-        for part in calibrated_information(
-            tensors, tracks, start, intrinsics, np.zeros(1), MAX_TRACKS, workers
-        )
-        if np.isfinite(part.cost)
-    ]
-    information = sum((part.information for part in parts), np.zeros((5, 5)))
-    gradient = sum((part.gradient for part in parts), np.zeros(5))
-    cost = sum(part.cost for part in parts)
-    observations = sum(6 * part.num_tracks for part in parts)
-    unknowns = sum(3 * part.num_tracks + 11 for part in parts)
-    tied = camera_model in _RADIAL_MODELS or camera.single_focal
-    with_k = refined_directions(setup.refined, tied=tied, extra=1)
-    if observations <= unknowns + with_k.shape[1]:
-        return None
-    variance = cost / (observations - unknowns - with_k.shape[1])
-
-    def decrease(directions: np.ndarray) -> float:
-        if directions.size == 0:
-            return 0.0
-        reduced = directions.T @ information @ directions
-        step = np.linalg.lstsq(reduced, directions.T @ gradient, rcond=None)[0]
-        return float((directions.T @ gradient) @ step)
-
-    without_k = with_k[:, :-1]
-    return float((decrease(with_k) - decrease(without_k)) / variance)

@@ -67,8 +67,9 @@ from .calibrated_tracks import (
     observed_tracks,
     triangulate,
 )
+from .camera_setup import camera_start, refined_directions
 from .information import reduced_information
-from .shared_camera import agree_and_adjust, camera_start, refined_directions, shared_camera
+from .shared_camera import agree_and_adjust, shared_camera
 
 
 @dataclass

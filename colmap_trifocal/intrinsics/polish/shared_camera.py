@@ -23,8 +23,8 @@ from ...common.bundle_adjustment import bundle_adjustment_options
 from ...common.log import keep_colmap_quiet
 from ...common.parallel import map_jobs
 from ...database.cameras import CameraInfo
-from ..solve.parametrization import FreeParameters
 from .calibrated_tracks import Observed, calibrated_cameras, triangulate
+from .camera_setup import NOTHING, Refined
 from .information import reduced_information
 
 #: The one camera of the shared reconstruction.
@@ -35,45 +35,6 @@ GRADIENT_TOLERANCE = 1e-14
 
 
 MAX_ITERATIONS = 200
-
-
-@dataclass(frozen=True)
-class Refined:
-    """What an adjustment of the shared camera refines besides poses and points."""
-
-    focal: bool = False
-    principal_point: bool = False
-    distortion: bool = False
-
-
-#: Poses and points only: the camera held.
-NOTHING = Refined()
-
-
-@dataclass(frozen=True)
-class CameraSetup:
-    """The shared camera's COLMAP model (PINHOLE, or SIMPLE_PINHOLE for a tied focal
-    length) and what its adjustment refines."""
-
-    model: str
-    refined: Refined
-
-    @property
-    def tied(self) -> bool:
-        """One focal length for both axes."""
-        return self.model == "SIMPLE_PINHOLE"
-
-
-def pycolmap_camera_setup(free_parameters: FreeParameters) -> CameraSetup | None:
-    """The shared camera that estimates ``free_parameters``.
-
-    None when pycolmap cannot express it (one principal-point coordinate held) or
-    nothing is estimated.
-    """
-    if free_parameters.cx != free_parameters.cy or free_parameters.dimension == 0:
-        return None
-    camera_model = "SIMPLE_PINHOLE" if free_parameters.focal == "tied" else "PINHOLE"
-    return CameraSetup(camera_model, Refined(free_parameters.focal != "held", free_parameters.cx))
 
 
 @dataclass
@@ -294,36 +255,6 @@ class SharedCamera:
                 for triplet in self.triplets
             ]
         )
-
-
-def camera_start(
-    free_parameters: FreeParameters, estimate: np.ndarray
-) -> tuple[CameraSetup, np.ndarray] | None:
-    """The shared camera's setup (:func:`pycolmap_camera_setup`) and its starting
-    (fx, fy, cx, cy) in pixels (fy = fx for a single focal length); None where
-    pycolmap cannot express ``free_parameters``."""
-    setup = pycolmap_camera_setup(free_parameters)
-    if setup is None:
-        return None
-    intrinsics = np.asarray(estimate, dtype=float).copy()
-    if setup.tied:
-        intrinsics[1] = intrinsics[0]
-    return setup, intrinsics
-
-
-def refined_directions(refined: Refined, *, tied: bool, extra: int = 0) -> np.ndarray:
-    """A (4 + extra, k): (fx, fy, cx, cy, extra parameters) = A p for the k parameters an
-    adjustment refines: one focal length (``tied``) or two, the principal point, and
-    each of the ``extra`` (distortion) parameters."""
-    q = 4 + extra
-    unit = np.eye(q)
-    columns = []
-    if refined.focal:
-        columns += [unit[0] + unit[1]] if tied else [unit[0], unit[1]]
-    if refined.principal_point:
-        columns += [unit[2], unit[3]]
-    columns += [unit[4 + i] for i in range(extra)]
-    return np.array(columns).reshape(-1, q).T
 
 
 def shared_camera(

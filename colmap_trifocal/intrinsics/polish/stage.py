@@ -42,10 +42,10 @@ import numpy as np
 from ...common.log import logger
 from ...geometry.tensor_estimation import TripletTensor
 from ..results import PARAMETER_NAMES
-from ..solve.constraints import FallbackSolution
+from ..solve.fallback import FallbackSolution
 from ..solve.uncertainty import jackknife_covariance
 from .bundle import TripletBundleResult, polish_intrinsics, predict_polish
-from .shared_camera import pycolmap_camera_setup
+from .camera_setup import pycolmap_camera_setup
 
 #: Largest ratio of the polish's jackknife variance to the constraint solve's at
 #: which the polish is kept when no more triplets agree with it than with the

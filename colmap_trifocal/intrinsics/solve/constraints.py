@@ -7,7 +7,7 @@ relative corrections ``θ = (fx/fx0 − 1, fy/fy0 − 1, (cx − cx0)/fx0, (cy �
 dimensionless and of the same scale, which keeps the problem well conditioned.
 Which of them are estimated is a :class:`intrinsics.solve.parametrization.Parametrization`
 (single-focal cameras tie fy to fx; parameters the images do not determine are
-tied or held at the prior, :func:`solve_with_fallback`).
+tied or held at the prior, :func:`.fallback.solve_with_fallback`).
 
 Residual scaling. The raw constraint values of different triplets are not
 comparable: a short-baseline triplet with few tracks has a noisy tensor and
@@ -22,8 +22,8 @@ approximately a standard normal 7-vector: ``‖r‖²`` ~ χ²(7), so one thresh
 
 The levels: a :class:`ConstraintProblem` (one set of tensors, one parametrization)
 has a :class:`ConstraintSolution` per solve (:func:`solve`); a camera's
-:class:`FallbackProblem` (its tensors, method, start and held values) is solved by
-:func:`solve_with_fallback` into a :class:`FallbackSolution` (the parameters the
+:class:`.fallback.FallbackProblem` (its tensors, method, start and held values) is solved by
+:func:`.fallback.solve_with_fallback` into a :class:`.fallback.FallbackSolution` (the parameters the
 images determine), which the polish and the assessment turn into the camera's
 :class:`.results.CameraCalibration`.
 
@@ -56,12 +56,10 @@ from ...geometry.trifocal import (
 )
 from .observability import (
     conditioned_covariance,
-    default_held_std,
-    effective_std,
     relative_std,
-    select_free_parameters,
 )
-from .parametrization import FULL, FreeParameters, Parametrization
+from .parametrization import FULL, Parametrization
+from .theta import theta_to_matrix
 from .uncertainty import combined_information, jackknife_replicates, one_step_replicate
 
 #: MSAC threshold on the whitened constraint norm ‖r_i‖ (dimensionless).
@@ -76,46 +74,6 @@ _FD_STEP_THETA = 1e-7
 RAW_SENSITIVITY_FLOOR = 1e-6
 #: All four parameters free, θ = p.
 FULL_PARAMETRIZATION = FULL.parametrization(np.ones(4), np.ones(4))
-
-
-def theta_to_matrix(theta: np.ndarray) -> np.ndarray:
-    """``M = K0⁻¹ K`` (..., 3, 3) from relative corrections θ (..., 4)."""
-    M = np.zeros(theta.shape[:-1] + (3, 3))
-    M[..., 0, 0] = 1.0 + theta[..., 0]
-    M[..., 1, 1] = 1.0 + theta[..., 1]
-    M[..., 0, 2] = theta[..., 2]
-    M[..., 1, 2] = theta[..., 3]
-    M[..., 2, 2] = 1.0
-    return M
-
-
-def theta_to_intrinsics(theta: np.ndarray, prior: np.ndarray) -> np.ndarray:
-    """(fx, fy, cx, cy) in pixels from θ and the prior (fx0, fy0, cx0, cy0)."""
-    fx0, fy0, cx0, cy0 = prior
-    return np.array(
-        [fx0 * (1 + theta[0]), fy0 * (1 + theta[1]), cx0 + fx0 * theta[2], cy0 + fy0 * theta[3]]
-    )
-
-
-def fold_focal_sign(intrinsics: np.ndarray) -> np.ndarray:
-    """(fx, fy, cx, cy) with positive focal lengths (pixels).
-
-    The 15 constraints cannot tell fx from −fx (nor fy from −fy): calibrating with
-    ``K·diag(±1, ±1, 1)`` maps a calibrated tensor to the calibrated tensor of the
-    mirrored cameras (``D R D`` is a rotation), and the constraint values are equal
-    for any tensor (checked in ``tests/test_trifocal.py``). A solve that crossed
-    zero therefore found the same K; this returns it with the physical sign.
-    """
-    folded = np.array(intrinsics, dtype=float)
-    folded[..., :2] = np.abs(folded[..., :2])
-    return folded
-
-
-def intrinsics_to_theta(intrinsics: np.ndarray, prior: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`theta_to_intrinsics`."""
-    fx0, fy0, cx0, cy0 = prior
-    fx, fy, cx, cy = intrinsics
-    return np.array([fx / fx0 - 1, fy / fy0 - 1, (cx - cx0) / fx0, (cy - cy0) / fy0])
 
 
 def _constraints_of_cameras(P: np.ndarray, M: np.ndarray) -> np.ndarray:
@@ -381,7 +339,7 @@ def solve(
         irls_iterations: msac-opt reweighting rounds at most.
         span: the unknowns the returned ``information`` covers (default: those of
             ``parametrization``); a larger set's lets a caller judge what fixing
-            parameters costs (:func:`solve_with_fallback`).
+            parameters costs (:func:`.fallback.solve_with_fallback`).
     """
     parametrization = parametrization or FULL_PARAMETRIZATION
     span = span or parametrization
@@ -434,191 +392,3 @@ def solve(
         per_tensor_theta=candidates,
         per_tensor_scores=scores,
     )
-
-
-@dataclass
-class FallbackSolution:
-    """How :func:`solve_with_fallback` solved a camera's :class:`FallbackProblem`: the
-    solve of every parameter the camera model has, and the one finally kept."""
-
-    solution: ConstraintSolution  # of ``free_parameters``
-    free_parameters: FreeParameters  # the parameters the images determine
-    unconstrained: ConstraintSolution  # of ``base``: every parameter the camera model has
-    #: (4,) std of θ of ``solution``, its ties and holds counted as uncertain
-    #: (:func:`intrinsics.solve.observability.effective_std`); meaningful for the estimated
-    #: parameters.
-    relative_std: np.ndarray
-    #: (4,) the std of θ below which a parameter counted as determined.
-    tolerances: np.ndarray
-    #: (4,) how much each estimated θ moved when the held values were moved by their
-    #: std (:func:`held_value_sensitivity`; zero where nothing is held).
-    held_shift: np.ndarray = field(default_factory=lambda: np.zeros(4))
-    #: (4,) whether the data pulls each estimated parameter back when the solve
-    #: starts away from the estimate (:func:`data_moves`); True for held ones.
-    moved: np.ndarray = field(default_factory=lambda: np.ones(4, dtype=bool))
-
-
-@dataclass(frozen=True)
-class FallbackProblem:
-    """One camera's constraint solve: what its solves (:func:`solve_with_fallback`,
-    one :class:`ConstraintProblem` each) share: its tensors, the method, and the
-    values the parameters start from or are held at.
-
-    Attributes:
-        tensors: tensors normalised by ``start``.
-        method: ``direct``, ``msac`` or ``msac-opt``.
-        start: (fx0, fy0, cx0, cy0) of the normalisation, pixels (θ = 0 there).
-        held: the values held parameters keep (the best the run has: the prior, or
-            the focal search's focal length), pixels.
-        tolerances: (4,) std of θ below which a parameter is determined
-            (:func:`intrinsics.solve.observability.tolerance`).
-        tau: MSAC threshold on the whitened residual norm.
-        held_std: (4,) how well the held values are known, relative to the focal
-            length (None: a prior's, :func:`intrinsics.solve.observability.default_held_std`).
-    """
-
-    tensors: list[TripletTensor]
-    method: str
-    start: np.ndarray
-    held: np.ndarray
-    tolerances: np.ndarray
-    tau: float = MSAC_TAU
-    held_std: np.ndarray | None = None
-
-    def solve(
-        self, parametrization: Parametrization, span: Parametrization | None = None
-    ) -> ConstraintSolution:
-        """:func:`solve` of these tensors with this method for one parametrization."""
-        return solve(self.tensors, self.method, parametrization, self.tau, span=span)
-
-    def parametrization(
-        self, free_parameters: FreeParameters, held: np.ndarray | None = None
-    ) -> Parametrization:
-        """``free_parameters``' parametrization around ``start`` (held values: ``held``
-        or the own)."""
-        return free_parameters.parametrization(self.start, self.held if held is None else held)
-
-
-def solve_with_fallback(problem: FallbackProblem, base: FreeParameters) -> FallbackSolution:
-    """Solve ``base``; while parameters are undetermined, re-solve without them.
-
-    Each round keeps the largest set of parameters the information at the current
-    estimate determines (:func:`intrinsics.solve.observability.select_free_parameters`), so every
-    round estimates strictly fewer parameters and the loop ends (at worst with
-    everything held). ``direct`` keeps ``base``: it has no outlier defence, so
-    outlier tensors inflate its reduced χ² by orders of magnitude and its std says
-    nothing about which parameters the images determine; it is the paper's
-    non-robust variant and returns its own least-squares estimate.
-
-    Args:
-        problem: the tensors, method, start, held values and tolerances.
-        base: the parameters the camera model has (all four, or one focal length).
-
-    The returned std of the estimated parameters includes what the held values'
-    uncertainty does to them: to first order through the information
-    (:func:`intrinsics.solve.observability.effective_std`), and beyond it by re-solving with the
-    held values moved by their std (:func:`held_value_sensitivity`); the larger
-    of the two counts.
-    """
-    method, start, held = problem.method, problem.start, problem.held
-    span = problem.parametrization(base)
-    free_parameters = base
-    solution = unconstrained = problem.solve(span, span=span)
-    while method != "direct":
-        reduced = select_free_parameters(
-            solution.information,
-            free_parameters,
-            base,
-            start,
-            held,
-            problem.tolerances,
-            problem.held_std,
-        )
-        if reduced == free_parameters:
-            break
-        free_parameters = reduced
-        solution = problem.solve(problem.parametrization(free_parameters), span=span)
-    std = effective_std(solution.information, free_parameters, base, start, held, problem.held_std)
-    shift = np.zeros(4)
-    if method != "direct" and 0 < free_parameters.dimension < base.dimension:
-        shift = held_value_sensitivity(problem, free_parameters, base, solution.theta)
-        conditional = np.where(np.isfinite(solution.relative_std), solution.relative_std, np.inf)
-        std = np.maximum(std, np.hypot(conditional, shift))
-    moved = np.ones(4, dtype=bool)
-    if method != "direct" and free_parameters.dimension > 0:
-        moved = data_moves(problem, free_parameters, solution.theta)
-    return FallbackSolution(
-        solution, free_parameters, unconstrained, std, problem.tolerances, shift, moved
-    )
-
-
-#: :func:`data_moves` starts this many tolerances away from the estimate ...
-MOVE_TEST_OFFSET = 3.0
-#: ... and a parameter counts as moved by the data when the solve brings it back
-#: by at least this fraction of the offset.
-MOVE_TEST_RECOVERY = 0.5
-
-
-def data_moves(
-    problem: FallbackProblem, free_parameters: FreeParameters, theta: np.ndarray
-) -> np.ndarray:
-    """Whether the data moves each estimated parameter (4,): a parameter the data does
-    not move from its start is not determined, whatever its std says.
-
-    ``free_parameters`` are solved again from the estimate ``theta`` with every
-    estimated parameter offset by ``MOVE_TEST_OFFSET`` tolerances (alternating
-    signs); a parameter the constraints determine returns at least
-    ``MOVE_TEST_RECOVERY`` of the way.
-    Held parameters count as moved (they are not estimated).
-    """
-    parametrization = problem.parametrization(free_parameters)
-    free = parametrization.free(theta)
-    signs = np.array([1.0, 1.0, -1.0, 1.0])
-    offset_theta = MOVE_TEST_OFFSET * problem.tolerances * signs
-    offset_free = parametrization.free(theta + offset_theta) - free
-    # Same unknowns, p = 0 now at the offset estimate.
-    shifted = Parametrization(parametrization.matrix, parametrization.theta(free + offset_free))
-    result = problem.solve(shifted).theta
-    applied = shifted.offset - theta
-    recovered = np.abs(applied) - np.abs(result - theta)
-    estimated = np.abs(parametrization.matrix).sum(axis=1) > 0
-    moved = recovered >= MOVE_TEST_RECOVERY * np.abs(applied)
-    return np.where(estimated & (np.abs(applied) > 0), moved, True)
-
-
-def held_value_sensitivity(
-    problem: FallbackProblem,
-    free_parameters: FreeParameters,
-    base: FreeParameters,
-    theta: np.ndarray,
-) -> np.ndarray:
-    """How far (4,) the estimated θ (``theta``) move when the held values move by their std.
-
-    Each held group (the focal length; cx; cy) is moved by its std in turn and
-    ``free_parameters`` solved again; the moves add in quadrature. This is the coupling the
-    linearised information misses when the held direction carries no
-    information at all (there the curvature has no cross term, yet the
-    estimated principal point follows a wrong focal length). Zero for held
-    parameters themselves.
-    """
-    held_std = default_held_std() if problem.held_std is None else np.asarray(problem.held_std)
-    fx0, fy0 = float(problem.start[0]), float(problem.start[1])
-    groups = []
-    if free_parameters.focal == "held" and base.focal != "held":
-        groups.append(np.array([held_std[0] * fx0, held_std[1] * fy0, 0.0, 0.0]))
-    for index, kept, base_kept in (
-        (2, free_parameters.cx, base.cx),
-        (3, free_parameters.cy, base.cy),
-    ):
-        if base_kept and not kept:
-            step = np.zeros(4)
-            step[index] = held_std[index] * (fx0 if index == 2 else fy0)
-            groups.append(step)
-    squared = np.zeros(4)
-    for step in groups:
-        moved = problem.solve(problem.parametrization(free_parameters, problem.held + step)).theta
-        squared += (moved - theta) ** 2
-    estimated = np.array(
-        [free_parameters.focal != "held"] * 2 + [free_parameters.cx, free_parameters.cy]
-    )
-    return np.where(estimated, np.sqrt(squared), 0.0)

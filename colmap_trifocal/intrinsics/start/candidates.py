@@ -17,8 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..options import RESTART_THRESHOLD, CalibrationOptions
-from ..solve.constraints import FallbackSolution, fold_focal_sign, theta_to_intrinsics
+from ..solve.fallback import FallbackSolution
 from ..solve.observability import FALLBACK_FACTOR, default_held_std
+from ..solve.theta import fold_focal_sign, theta_to_intrinsics, with_focal
 from .focal_search import FocalSearchResult
 
 #: Other starts :func:`other_starts` offers at most (besides the first).
@@ -133,10 +134,3 @@ def moved_far(estimate: np.ndarray, start: np.ndarray) -> bool:
     """Whether any parameter moved more than ``RESTART_THRESHOLD`` of the focal length."""
     focal = np.array([start[0], start[1], start[0], start[1]])
     return bool(np.max(np.abs(estimate - start) / focal) > RESTART_THRESHOLD)
-
-
-def with_focal(intrinsics: np.ndarray, focal: float) -> np.ndarray:
-    """(fx, fy, cx, cy) with √(fx·fy) set to ``focal`` (pixels), the aspect ratio and the
-    principal point of ``intrinsics`` kept."""
-    aspect = np.sqrt(intrinsics[1] / intrinsics[0])
-    return np.array([focal / aspect, focal * aspect, intrinsics[2], intrinsics[3]])

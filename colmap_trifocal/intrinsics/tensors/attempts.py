@@ -24,15 +24,10 @@ from ...common.timing import StageClock
 from ..inputs.camera_input import CameraInput
 from ..inputs.triplet_selection import CameraTracks
 from ..options import CalibrationOptions
-from ..solve.constraints import (
-    FallbackProblem,
-    FallbackSolution,
-    fold_focal_sign,
-    solve_with_fallback,
-    theta_to_intrinsics,
-)
+from ..solve.fallback import FallbackProblem, FallbackSolution, solve_with_fallback
 from ..solve.observability import tolerance
 from ..solve.parametrization import FULL, HELD, SINGLE_FOCAL, FreeParameters
+from ..solve.theta import fold_focal_sign, theta_to_intrinsics
 from ..start.candidates import StartCandidate, moved_far, other_starts, restart_point
 from ..start.focal_search import FocalSearchResult
 from .estimator import TensorEstimator, TensorSet

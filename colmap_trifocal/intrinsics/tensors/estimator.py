@@ -31,7 +31,8 @@ from ...geometry.tensor_estimation import TripletFit, TripletTensor, fit_triplet
 from ...geometry.trifocal import intrinsics_matrix
 from ..inputs.triplet_selection import CameraTracks
 from ..options import CalibrationOptions
-from ..solve.constraints import ConstraintProblem, intrinsics_to_theta
+from ..solve.constraints import ConstraintProblem
+from ..solve.theta import intrinsics_to_theta
 
 #: Refinement starts per triplet over one camera's calibration: a restart, another
 #: start or second starts are run only while they fit (the first start always runs).
