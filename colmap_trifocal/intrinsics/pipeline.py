@@ -34,7 +34,7 @@ from ..common.log import logger
 from ..common.timing import StageClock
 from ..database.cameras import CameraInfo
 from ..database.snapshot import DatabaseContents
-from .assess.assessment import assess
+from .assess.assessment import AssessInput, assess
 from .baselines.fundamental import calibrate_fundamental
 from .inputs.camera_input import CameraInput, camera_input
 from .inputs.triplet_selection import CameraTracks, select_camera_triplets
@@ -48,9 +48,9 @@ from .lens.warp import (
     warped_input,
 )
 from .options import CalibrationOptions
-from .polish.stage import Polished, polish
+from .polish.stage import Polished, PolishInput, polish
 from .results import CameraCalibration
-from .start.candidates import first_start
+from .start.candidates import StartCandidate, first_start
 from .start.focal_search import FocalSearchResult, search_focal
 from .tensors.attempts import (
     Attempt,
@@ -195,12 +195,52 @@ def _calibrate_method(
     most tensors disagree at the first start on a camera that may hold radial
     distortion, the lens search's warp (:mod:`.lens.warp`) and everything again on
     the warped tracks first."""
-    camera = data.camera
     inputs = AttemptInputs(data, tracks, estimator, method, options, clock)
-    candidate = first_start(data.prior, search)
-    lens_applies = lens_search_applies(camera, method, options)
+    chosen = _chosen_run(inputs, first_start(data.prior, search), search)
+    best = chosen.finished.attempt
+    with clock("assessment"):
+        result = assess(
+            AssessInput(
+                chosen.inputs.data,
+                method,
+                best.candidate,
+                best.tensors.start,
+                best.tensors.tensors,
+                best.fallback,
+                chosen.finished.polished,
+                chosen.search,
+                chosen.inputs.tracks.tracks,
+                chosen.finished.lens,
+                options.workers,
+                chosen.finding,
+            )
+        )
+    result.seconds = clock.total
+    result.stage_seconds = clock.as_dict()
+    result.tensor_starts = estimator.starts_used
+    logger.info("camera %d: %s", data.camera.camera_id, clock.summary())
+    return result
+
+
+@dataclass
+class _Chosen:
+    """The run a method's result is assessed from: its inputs (raw or warped), its focal
+    search, what it finished with, and what the route found about the lens."""
+
+    inputs: AttemptInputs
+    search: FocalSearchResult | None
+    finished: Finished
+    finding: str | None
+
+
+def _chosen_run(
+    inputs: AttemptInputs, candidate: StartCandidate, search: FocalSearchResult | None
+) -> _Chosen:
+    """The lens route where it applies and its tensors agree, else the raw tracks'
+    attempts from ``candidate`` and the other starts, finished (hold, polish, lens)."""
+    lens_applies = lens_search_applies(inputs.data.camera, inputs.method, inputs.options)
     route = NO_ROUTE
-    if lens_applies and first_tensors_disagree(inputs, candidate, options.search_triplets):
+    if lens_applies and first_tensors_disagree(inputs, candidate, inputs.options.search_triplets):
         # Most of the first triplets disagree: the lens search, before the other tensors.
         route = _through_lens_search(inputs)
     first = None
@@ -211,40 +251,19 @@ def _calibrate_method(
         if route.search is None and not first.majority_agrees and lens_applies:
             route = _through_lens_search(inputs)
     # One budget for the camera's tensor work, the warped tracks' included.
-    estimator.charge(route.spent)
+    inputs.estimator.charge(route.spent)
     if route.warped is not None:
-        inputs, search, finished = route.warped.inputs, route.warped.search, route.warped.finished
-    else:
-        assert first is not None
-        best = restarted(inputs, first)
-        if not route.bent:
-            best = best_attempt(inputs, best, search)
-        # Else the raw tracks are bent and no warp made the tensors agree: other
-        # focal lengths cannot either (the disagreement is the lens's, not the start's).
-        finished = _finish(inputs, best)
-    # The lens is named as the cause only where the raw tracks' tensors disagreed too.
-    finding = None if first is None or first.majority_agrees else route.finding()
-    best = finished.attempt
-    with clock("assessment"):
-        result = assess(
-            inputs.data,
-            method,
-            best.candidate,
-            best.tensors.start,
-            best.tensors.tensors,
-            best.fallback,
-            finished.polished,
-            search,
-            inputs.tracks.tracks,
-            finished.lens,
-            options.workers,
-            finding,
-        )
-    result.seconds = clock.total
-    result.stage_seconds = clock.as_dict()
-    result.tensor_starts = estimator.starts_used
-    logger.info("camera %d: %s", camera.camera_id, clock.summary())
-    return result
+        warped = route.warped
+        return _Chosen(warped.inputs, warped.search, warped.finished, None)
+    assert first is not None
+    best = restarted(inputs, first)
+    if not route.bent:
+        best = best_attempt(inputs, best, search)
+    # Else the raw tracks are bent and no warp made the tensors agree: other focal
+    # lengths cannot either (the disagreement is the lens's, not the start's). The lens
+    # is named as the cause only where the raw tracks' tensors disagreed too.
+    finding = None if first.majority_agrees else route.finding()
+    return _Chosen(inputs, search, _finish(inputs, best), finding)
 
 
 def _finish(
@@ -269,16 +288,18 @@ def _finish(
             # On warped tracks the lens stage adjusts K with the distortion from the
             # raw tracks: polishing K on the warped ones first would only move its start.
             polished = polish(
-                best.tensors.tensors,
-                by_images,
-                start,
-                estimate,
-                fallback,
-                best.agreeing,
-                (camera.width, camera.height),
-                options.tau,
-                camera.camera_id,
-                options.workers,
+                PolishInput(
+                    best.tensors.tensors,
+                    by_images,
+                    start,
+                    estimate,
+                    fallback,
+                    best.agreeing,
+                    (camera.width, camera.height),
+                    options.tau,
+                    camera.camera_id,
+                    options.workers,
+                )
             )
         lens = estimate_distortion(
             DistortionInput(

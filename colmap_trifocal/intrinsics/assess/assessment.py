@@ -8,7 +8,7 @@ values' uncertainty counted) and the data actually moved it
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -30,34 +30,108 @@ from .diagnosis import diagnose
 _SOURCE_WORDS = {"prior": "the prior", "focal-search": "the focal search's estimate"}
 
 
-def assess(
-    data: CameraInput,
-    method: str,
-    candidate: StartCandidate,
-    start: np.ndarray,
-    tensors: list[TripletTensor],
-    fallback: FallbackSolution,
-    polished: Polished,
-    search: FocalSearchResult | None,
-    tracks: list[np.ndarray],
-    lens: LensDistortion | None = None,
-    workers: int | None = None,
-    finding: str | None = None,
-) -> CameraCalibration:
-    """The camera's result (``seconds`` 0: the caller sets them).
+@dataclass(frozen=True)
+class AssessInput:
+    """What the assessment reads: the camera's final attempt and what followed it.
 
-    Args:
+    Attributes:
+        data: the camera's input (prior, stored camera).
+        method: the trifocal variant.
         candidate: the start whose solve was kept (its held values).
         start: the normalisation of ``tensors`` (after a restart), pixels.
+        tensors: the kept solve's tensors.
+        fallback: the kept solve.
         polished: the estimate after the polish stage.
+        search: the focal search (None: not run).
         tracks: per triplet, its tracks (3, n, 2), pixels (for the diagnosis).
-        lens: the distortion the triplets show (:mod:`intrinsics.lens.distortion`), None when
-            it was not estimated.
+        lens: the distortion the triplets show (:mod:`intrinsics.lens.distortion`),
+            None when it was not estimated.
         workers: threads for the diagnosis (None: one per core).
         finding: a cause the earlier stages found (the lens search's bent tracks),
             first in the diagnosis.
     """
-    camera, free_parameters = data.camera, fallback.free_parameters
+
+    data: CameraInput
+    method: str
+    candidate: StartCandidate
+    start: np.ndarray
+    tensors: list[TripletTensor]
+    fallback: FallbackSolution
+    polished: Polished
+    search: FocalSearchResult | None
+    tracks: list[np.ndarray]
+    lens: LensDistortion | None = None
+    workers: int | None = None
+    finding: str | None = None
+
+
+@dataclass
+class _Reported:
+    """The values the result reports (pixels) and how each is known."""
+
+    estimate: np.ndarray
+    std: dict[str, float | None]
+    observable: dict[str, bool]
+    estimated: dict[str, bool]
+    source: dict[str, str]
+    unconstrained: dict[str, float | None]
+    distortion: list[float] | None
+    lens: LensDistortion | None
+    lens_note: str | None
+
+
+def assess(given: AssessInput) -> CameraCalibration:
+    """The camera's result (``seconds`` 0: the caller sets them)."""
+    camera, fallback = given.data.camera, given.fallback
+    reported = _reported(given)
+    return CameraCalibration(
+        camera_id=camera.camera_id,
+        model=camera.model,
+        method=given.method,
+        fx=float(reported.estimate[0]),
+        fy=float(reported.estimate[1]),
+        cx=float(reported.estimate[2]),
+        cy=float(reported.estimate[3]),
+        std=reported.std,
+        observable=reported.observable,
+        num_triplets=len(given.tensors),
+        num_inlier_triplets=given.polished.agreeing,
+        seconds=0.0,
+        prior=tuple(map(float, given.data.prior)),  # type: ignore[arg-type]
+        start=tuple(map(float, given.start)),  # type: ignore[arg-type]
+        assumptions=[
+            note.replace("the prior", _SOURCE_WORDS[given.candidate.held_source], 1)
+            if note.startswith("fx, fy")
+            else note
+            for note in fallback.free_parameters.assumptions()
+        ],
+        estimated=reported.estimated,
+        source=reported.source,
+        focal_search=search_summary(given.search),
+        diagnosis=_joined(
+            given.finding,
+            reported.lens_note,
+            None
+            if all(reported.observable.values())
+            else diagnose(given.tracks, reported.estimate, given.workers),
+        ),
+        triplet_bundle=given.polished.summary,
+        lens_distortion=None if reported.lens is None else reported.lens.summary(),
+        distortion=reported.distortion,
+        unconstrained_std=reported.unconstrained,
+        triplets=triplet_reports(given.tensors, fallback.solution, given.start),
+        tensors=given.tensors,
+        stored_camera=camera,
+    )
+
+
+def _reported(given: AssessInput) -> _Reported:
+    """The reported values: the polished estimate with the lens judged, each std,
+    what is determined and where each value comes from; held values keep their start's
+    std (a held value is known as well as its evidence)."""
+    camera, fallback, candidate = given.data.camera, given.fallback, given.candidate
+    start, polished, lens = given.start, given.polished, given.lens
+    free_parameters = fallback.free_parameters
     focal_scale = np.array([start[0], start[1], start[0], start[1]])
     estimate, relative_std, distortion, lens_note = with_lens(
         polished.intrinsics, polished.relative_std, lens, camera.model, focal_scale
@@ -77,51 +151,24 @@ def assess(
     held_focal = np.array([candidate.held[0], candidate.held[1]] * 2)
     for index, name in enumerate(PARAMETER_NAMES):
         if source[name] in ("focal-search", "prior"):
-            # A held value is known as well as its evidence: the start's std. It stays
-            # held where the lens adjustment refined it with the rest of the principal
-            # point (pycolmap refines both coordinates or neither).
+            # It stays held where the lens adjustment refined it with the rest of the
+            # principal point (pycolmap refines both coordinates or neither).
             reported_std[name] = float(candidate.held_std[index] * held_focal[index])
             estimate[index] = polished.intrinsics[index]
     if lens is not None and source["fx"] in ("focal-search", "prior"):
         lens = with_held_focal(lens, float(candidate.held_std[0]))
-    return CameraCalibration(
-        camera_id=camera.camera_id,
-        model=camera.model,
-        method=method,
-        fx=float(estimate[0]),
-        fy=float(estimate[1]),
-        cx=float(estimate[2]),
-        cy=float(estimate[3]),
+    return _Reported(
+        estimate=estimate,
         std=reported_std,
         observable=observable,
-        num_triplets=len(tensors),
-        num_inlier_triplets=polished.agreeing,
-        seconds=0.0,
-        prior=tuple(map(float, data.prior)),  # type: ignore[arg-type]
-        start=tuple(map(float, start)),  # type: ignore[arg-type]
-        assumptions=[
-            note.replace("the prior", _SOURCE_WORDS[candidate.held_source], 1)
-            if note.startswith("fx, fy")
-            else note
-            for note in free_parameters.assumptions()
-        ],
         estimated=estimated,
         source=source,
-        focal_search=search_summary(search),
-        diagnosis=_joined(
-            finding,
-            lens_note,
-            None if all(observable.values()) else diagnose(tracks, estimate, workers),
-        ),
-        triplet_bundle=polished.summary,
-        lens_distortion=None if lens is None else lens.summary(),
-        distortion=distortion,
-        unconstrained_std={
+        unconstrained={
             name: finite_or_none(s) for name, s in zip(PARAMETER_NAMES, unconstrained, strict=True)
         },
-        triplets=triplet_reports(tensors, fallback.solution, start),
-        tensors=tensors,
-        stored_camera=camera,
+        distortion=distortion,
+        lens=lens,
+        lens_note=lens_note,
     )
 
 

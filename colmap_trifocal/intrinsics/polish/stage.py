@@ -79,30 +79,45 @@ class Polished:
     summary: dict[str, Any] | None
 
 
-def polish(
-    tensors: list[TripletTensor],
-    tracks: dict[tuple[int, int, int], np.ndarray],
-    start: np.ndarray,
-    estimate: np.ndarray,
-    fallback: FallbackSolution,
-    agreeing: int,
-    size: tuple[int, int],
-    tau: float,
-    camera_id: int,
-    workers: int | None = None,
-) -> Polished:
-    """The polished estimate, or the constraint estimate with the reason it was kept.
+@dataclass(frozen=True)
+class PolishInput:
+    """What the polish reads.
 
-    Args:
+    Attributes:
         tensors: the solve's tensors, normalised by ``start`` (pixels).
         tracks: per triplet (image ids), its tracks (3, n, 2), pixels.
+        start: the tensors' normalisation (fx0, fy0, cx0, cy0), pixels.
         estimate: the constraint estimate (fx, fy, cx, cy), pixels.
         fallback: the constraint solve (free parameters, std, jackknife).
         agreeing: tensors that agree with ``estimate``.
         size: (width, height) of the images, pixels.
         tau: the MSAC threshold.
+        camera_id: for messages.
         workers: threads for the per-triplet work (None: one per core).
     """
+
+    tensors: list[TripletTensor]
+    tracks: dict[tuple[int, int, int], np.ndarray]
+    start: np.ndarray
+    estimate: np.ndarray
+    fallback: FallbackSolution
+    agreeing: int
+    size: tuple[int, int]
+    tau: float
+    camera_id: int
+    workers: int | None = None
+
+
+def polish(given: PolishInput) -> Polished:
+    """The polished estimate, or the constraint estimate with the reason it was kept."""
+    tensors, tracks, start, estimate = given.tensors, given.tracks, given.start, given.estimate
+    fallback, agreeing, camera_id, workers = (
+        given.fallback,
+        given.agreeing,
+        given.camera_id,
+        given.workers,
+    )
+    size, tau = given.size, given.tau
     unchanged = Polished(estimate, fallback.relative_std, agreeing, None)
     free_parameters = fallback.free_parameters
     if pycolmap_camera_setup(free_parameters) is None:
