@@ -6,13 +6,12 @@ import numpy as np
 import pytest
 
 from colmap_trifocal.common.errors import CalibrationError
+from colmap_trifocal.intrinsics.baselines.essential_cost import EssentialProblem, essential_cost
 from colmap_trifocal.intrinsics.baselines.fundamental import (
     FundamentalCalibResult,
-    _basis,
     _calibrate,
-    _residuals_and_jacobian,
+    _Settings,
     calibrate_from_fundamentals,
-    essential_cost,
 )
 
 # Ground-truth intrinsics (pixels) of a 3072 x 2048 camera (COLMAP pixel convention).
@@ -266,16 +265,16 @@ def test_analytic_jacobian_matches_finite_differences(scene, form, single_focal)
     rng = np.random.default_rng(5)
     g = rng.normal(size=(6, 3, 3))
     sqrt_w = rng.uniform(0.5, 2.0, size=6)
-    basis = _basis(single_focal)
+    problem = EssentialProblem(g, sqrt_w, single_focal, form)
     x = np.array([1.05, 0.03, -0.02]) if single_focal else np.array([1.05, 0.97, 0.03, -0.02])
-    _, jac = _residuals_and_jacobian(x, g, sqrt_w, basis, single_focal, form, True)
+    jac = problem.jacobian(x)
     h = 1e-6
     num = np.empty_like(jac)
     for p in range(len(x)):
         dx = np.zeros_like(x)
         dx[p] = h
-        rp = _residuals_and_jacobian(x + dx, g, sqrt_w, basis, single_focal, form, False)[0]
-        rm = _residuals_and_jacobian(x - dx, g, sqrt_w, basis, single_focal, form, False)[0]
+        rp = problem.residuals(x + dx)
+        rm = problem.residuals(x - dx)
         num[:, p] = (rp - rm) / (2.0 * h)
     np.testing.assert_allclose(jac, num, rtol=1e-5, atol=1e-7)
 
@@ -283,7 +282,8 @@ def test_analytic_jacobian_matches_finite_differences(scene, form, single_focal)
 def test_normalized_form_recovers_exact_intrinsics(scene) -> None:
     rots, trans, _ = scene
     fs = exact_fundamentals(rots, trans, TRUE_K)
-    res = _calibrate(fs, TRUE_K * 0.96, None, False, form="normalized", loss="linear", f_scale=1.0)
+    settings = _Settings(single_focal=False, form="normalized", loss="linear", f_scale=1.0)
+    res = _calibrate(fs, TRUE_K * 0.96, None, settings)
     assert np.max(rel_err(res.intrinsics)) < 1e-6
 
 

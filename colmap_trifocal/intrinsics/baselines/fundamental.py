@@ -69,7 +69,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Literal
 
 import cv2
 import numpy as np
@@ -80,6 +79,13 @@ from colmap_trifocal.common.log import logger
 
 from ..inputs.camera_input import CameraInput
 from ..results import PARAMETER_NAMES, CameraCalibration
+from .essential_cost import (
+    CostForm,
+    EssentialProblem,
+    calibration_matrix,
+    essential_cost,
+    unit_frobenius,
+)
 
 __all__ = [
     "ROBUST_F_SCALE",
@@ -95,7 +101,6 @@ ROBUST_LOSS = "cauchy"
 #: Soft threshold of the robust loss, in units of the (mean-one weighted) per-pair cost.
 ROBUST_F_SCALE = 0.02
 
-CostForm = Literal["ratio", "normalized"]
 
 # F's with σ2 <= _MIN_SIGMA2 · σ1 (rank < 2) are ignored: their cost would be unbounded.
 _MIN_SIGMA2 = 1e-9
@@ -122,53 +127,6 @@ class FundamentalCalibResult:
     cost: float
     num_pairs: int
     success: bool
-
-
-def _calibration_matrix(theta: np.ndarray) -> np.ndarray:
-    """Return the ``(3, 3)`` calibration matrix for ``theta = (fx, fy, cx, cy)`` (pixels)."""
-    fx, fy, cx, cy = (float(v) for v in theta)
-    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-
-
-def _unit_frobenius(mats: np.ndarray) -> np.ndarray:
-    """Scale every matrix of an ``(n, 3, 3)`` stack to unit Frobenius norm."""
-    norms = np.linalg.norm(mats.reshape(len(mats), -1), axis=1)
-    return np.asarray(mats / norms[:, None, None])
-
-
-def _pair_costs_from_sigmas(s1: np.ndarray, s2: np.ndarray, form: CostForm) -> np.ndarray:
-    """Per-pair cost from the two largest singular values (``s1 >= s2``)."""
-    if form == "ratio":
-        return np.asarray((s1 - s2) / s2)
-    return np.asarray((s1 - s2) / (s1 + s2))
-
-
-def essential_cost(
-    fundamentals: np.ndarray,
-    intrinsics: np.ndarray,
-    weights: np.ndarray | None = None,
-    form: CostForm = "ratio",
-) -> float:
-    """Mendonça–Cipolla cost ``Σ w_ij c_ij²`` of the intrinsics for a set of F matrices.
-
-    Args:
-        fundamentals: ``(n, 3, 3)`` fundamental matrices, ``x2ᵀ F x1 = 0`` in pixels.
-        intrinsics: ``(4,)`` ``fx, fy, cx, cy`` in pixels.
-        weights: ``(n,)`` non-negative pair weights; ``None`` means all ones.
-        form: ``"ratio"`` for ``c = (σ1 − σ2)/σ2`` (Mendonça–Cipolla) or ``"normalized"``
-            for ``c = (σ1 − σ2)/(σ1 + σ2)``.
-
-    Returns:
-        The weighted sum of squared per-pair costs (dimensionless, 0 for exact data at the
-        true ``K``).
-    """
-    f = _unit_frobenius(np.asarray(fundamentals, dtype=float).reshape(-1, 3, 3))
-    k = _calibration_matrix(np.asarray(intrinsics, dtype=float))
-    e = k.T @ f @ k
-    sig = np.linalg.svd(e, compute_uv=False)
-    c = _pair_costs_from_sigmas(sig[:, 0], sig[:, 1], form)
-    w = np.ones(len(f)) if weights is None else np.asarray(weights, dtype=float)
-    return float(np.sum(w * c**2))
 
 
 def _validate(
@@ -209,77 +167,23 @@ def _validate(
     return f, p, w
 
 
-def _basis(single_focal: bool) -> np.ndarray:
-    """Derivatives ``dM/dθ_p`` as a ``(P, 3, 3)`` stack for the relative parametrisation."""
-    rows = [[0, 0], [1, 1], [0, 2], [1, 2]]
-    b = np.zeros((4, 3, 3))
-    for p, (r, c) in enumerate(rows):
-        b[p, r, c] = 1.0
-    if single_focal:
-        return np.stack([b[0] + b[1], b[2], b[3]])
-    return b
+@dataclass(frozen=True)
+class _Settings:
+    """How the cost is formed and made robust (see the module docstring)."""
+
+    single_focal: bool
+    form: CostForm = "ratio"
+    loss: str = ROBUST_LOSS
+    f_scale: float = ROBUST_F_SCALE
 
 
-def _m_from_params(x: np.ndarray, single_focal: bool) -> np.ndarray:
-    """``M = K0⁻¹ K`` from the relative parameters (``(a, b, u, v)`` or ``(s, u, v)``)."""
-    if single_focal:
-        a = b = x[0]
-        u, v = x[1], x[2]
-    else:
-        a, b, u, v = x
-    return np.array([[a, 0.0, u], [0.0, b, v], [0.0, 0.0, 1.0]])
-
-
-def _residuals_and_jacobian(
-    x: np.ndarray,
-    g: np.ndarray,
-    sqrt_w: np.ndarray,
-    basis: np.ndarray,
-    single_focal: bool,
-    form: CostForm,
-    with_jac: bool,
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """Weighted per-pair residuals ``sqrt(w) c`` and optionally their ``(n, P)`` Jacobian.
-
-    ``g`` is the ``(n, 3, 3)`` stack of pre-conditioned matrices ``K0ᵀ F K0``.
-    """
-    m = _m_from_params(x, single_focal)
-    e = m.T @ g @ m  # (n, 3, 3), broadcast
-    if not with_jac:
-        sig = np.linalg.svd(e, compute_uv=False)
-        c = _pair_costs_from_sigmas(sig[:, 0], sig[:, 1], form)
-        return sqrt_w * c, None
-    u, sig, vt = np.linalg.svd(e)
-    s1, s2 = sig[:, 0], sig[:, 1]
-    c = _pair_costs_from_sigmas(s1, s2, form)
-    # dσ_k = u_kᵀ dE v_k with dE = dMᵀ G M + Mᵀ G dM, so
-    # dσ_k/dM[r, c] = (G M v_k)[r] u_k[c] + (Gᵀ M u_k)[r] v_k[c].
-    uk = u[:, :, :2]  # (n, 3, 2) columns u_1, u_2
-    vk = np.swapaxes(vt[:, :2, :], 1, 2)  # (n, 3, 2) columns v_1, v_2
-    gmv = g @ (m @ vk)  # (n, 3, 2)
-    gtmu = np.swapaxes(g, 1, 2) @ (m @ uk)  # (n, 3, 2)
-    dsig_dm = np.einsum("nrk,nck->nkrc", gmv, uk) + np.einsum("nrk,nck->nkrc", gtmu, vk)
-    dsig = np.einsum("nkrc,prc->nkp", dsig_dm, basis)  # (n, 2, P)
-    d1, d2 = dsig[:, 0, :], dsig[:, 1, :]
-    if form == "ratio":
-        dc = (d1 * s2[:, None] - d2 * s1[:, None]) / (s2**2)[:, None]
-    else:
-        dc = 2.0 * (d1 * s2[:, None] - d2 * s1[:, None]) / ((s1 + s2) ** 2)[:, None]
-    return sqrt_w * c, sqrt_w[:, None] * dc
-
-
-def _calibrate(
-    fundamentals: np.ndarray,
-    prior: np.ndarray,
-    weights: np.ndarray | None,
-    single_focal: bool,
-    form: CostForm,
-    loss: str,
-    f_scale: float,
-) -> FundamentalCalibResult:
-    """Implementation of :func:`calibrate_from_fundamentals` with an explicit cost/loss."""
+def _usable(
+    fundamentals: np.ndarray, prior: np.ndarray, weights: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The checked F stack, prior and weights of the pairs that count (rank 2, weight
+    above 0); CalibrationError with fewer than 2."""
     f_all, p, w_all = _validate(fundamentals, prior, weights)
-    sig_all = np.linalg.svd(_unit_frobenius(f_all), compute_uv=False)
+    sig_all = np.linalg.svd(unit_frobenius(f_all), compute_uv=False)
     rank_deficient = sig_all[:, 1] <= _MIN_SIGMA2 * sig_all[:, 0]
     if np.any(rank_deficient & (w_all > 0.0)):
         logger.warning(
@@ -292,76 +196,70 @@ def _calibrate(
             "FundamentalCalib needs at least 2 fundamental matrices of rank 2 with positive "
             f"weight, got {int(np.count_nonzero(keep))}"
         )
-    f, w = f_all[keep], w_all[keep]
-    n = len(f)
+    return f_all[keep], p, w_all[keep]
 
+
+def _calibrate(
+    fundamentals: np.ndarray, prior: np.ndarray, weights: np.ndarray | None, settings: _Settings
+) -> FundamentalCalibResult:
+    """Implementation of :func:`calibrate_from_fundamentals` with an explicit cost/loss."""
+    f, p, w = _usable(fundamentals, prior, weights)
+    single_focal = settings.single_focal
     fx0, fy0, cx0, cy0 = p
     if single_focal:
         fx0 = fy0 = 0.5 * (fx0 + fy0)
-    k0 = _calibration_matrix(np.array([fx0, fy0, cx0, cy0]))
-    g = _unit_frobenius(k0.T @ _unit_frobenius(f) @ k0)
-    sqrt_w = np.sqrt(w / np.mean(w))  # mean-one weights so f_scale has a fixed meaning
-    basis = _basis(single_focal)
-
-    if single_focal:
-        x0 = np.array([1.0, 0.0, 0.0])
-        lo = np.array([_REL_FOCAL_BOUNDS[0], -np.inf, -np.inf])
-        hi = np.array([_REL_FOCAL_BOUNDS[1], np.inf, np.inf])
-    else:
-        x0 = np.array([1.0, 1.0, 0.0, 0.0])
-        lo = np.array([_REL_FOCAL_BOUNDS[0]] * 2 + [-np.inf] * 2)
-        hi = np.array([_REL_FOCAL_BOUNDS[1]] * 2 + [np.inf] * 2)
-
-    def fun(x: np.ndarray) -> np.ndarray:
-        return _residuals_and_jacobian(x, g, sqrt_w, basis, single_focal, form, False)[0]
-
-    def jac(x: np.ndarray) -> np.ndarray:
-        jacobian = _residuals_and_jacobian(x, g, sqrt_w, basis, single_focal, form, True)[1]
-        assert jacobian is not None
-        return jacobian
-
+    k0 = calibration_matrix(np.array([fx0, fy0, cx0, cy0]))
+    problem = EssentialProblem(
+        unit_frobenius(k0.T @ unit_frobenius(f) @ k0),
+        np.sqrt(w / np.mean(w)),  # mean-one weights so f_scale has a fixed meaning
+        single_focal,
+        settings.form,
+    )
+    focals = 1 if single_focal else 2
+    x0 = np.array([1.0] * focals + [0.0, 0.0])
+    lo = np.array([_REL_FOCAL_BOUNDS[0]] * focals + [-np.inf] * 2)
+    hi = np.array([_REL_FOCAL_BOUNDS[1]] * focals + [np.inf] * 2)
     sol = least_squares(
-        fun,
+        problem.residuals,
         x0,
-        jac=jac,
+        jac=problem.jacobian,
         bounds=(lo, hi),
         method="trf",
-        loss=loss,
-        f_scale=f_scale,
+        loss=settings.loss,
+        f_scale=settings.f_scale,
         ftol=1e-12,
         xtol=1e-12,
         gtol=1e-12,
         max_nfev=500,
     )
     x = sol.x
-    if single_focal:
-        a = b = x[0]
-        u, v = x[1], x[2]
-    else:
-        a, b, u, v = x
+    a, b = (x[0], x[0]) if single_focal else (x[0], x[1])
+    u, v = x[focals], x[focals + 1]
     intrinsics = np.array([a * fx0, b * fy0, cx0 + u * fx0, cy0 + v * fy0])
-    cost = essential_cost(f, intrinsics, w, form)
-    focal_rel = x[:1] if single_focal else x[:2]
-    inside = bool(np.all(focal_rel > lo[: len(focal_rel)] * 1.001)) and bool(
-        np.all(focal_rel < hi[: len(focal_rel)] * 0.999)
+    cost = essential_cost(f, intrinsics, w, settings.form)
+    inside = bool(np.all(x[:focals] > lo[:focals] * 1.001)) and bool(
+        np.all(x[:focals] < hi[:focals] * 0.999)
     )
     success = bool(sol.success) and bool(np.all(np.isfinite(intrinsics))) and inside
     success = success and bool(np.isfinite(cost))
     logger.debug(
         "FundamentalCalib: %d pairs, cost %.3g, nfev %d, status %d, K = %s",
-        n,
+        len(f),
         cost,
         sol.nfev,
         sol.status,
         np.array2string(intrinsics, precision=2),
     )
-    return FundamentalCalibResult(intrinsics=intrinsics, cost=cost, num_pairs=n, success=success)
+    return FundamentalCalibResult(
+        intrinsics=intrinsics, cost=cost, num_pairs=len(f), success=success
+    )
 
 
 def calibrate_from_fundamentals(
     fundamentals: np.ndarray,
     prior: np.ndarray,
     weights: np.ndarray | None = None,
+    *,
     single_focal: bool = False,
     robust: bool = True,
 ) -> FundamentalCalibResult:
@@ -392,15 +290,8 @@ def calibrate_from_fundamentals(
             malformed/non-finite input, or a prior that is not 4 finite values with
             positive focal lengths.
     """
-    return _calibrate(
-        fundamentals,
-        prior,
-        weights,
-        single_focal,
-        form="ratio",
-        loss=ROBUST_LOSS if robust else "linear",
-        f_scale=ROBUST_F_SCALE,
-    )
+    settings = _Settings(single_focal, loss=ROBUST_LOSS if robust else "linear")
+    return _calibrate(fundamentals, prior, weights, settings)
 
 
 def calibrate_fundamental(data: CameraInput) -> CameraCalibration:
@@ -425,7 +316,10 @@ def calibrate_fundamental(data: CameraInput) -> CameraCalibration:
             f"camera {camera.camera_id}: fewer than 2 image pairs with enough verified matches"
         )
     result = calibrate_from_fundamentals(
-        np.stack(fundamentals), prior, np.asarray(weights, float), camera.single_focal
+        np.stack(fundamentals),
+        prior,
+        np.asarray(weights, float),
+        single_focal=camera.single_focal,
     )
     return CameraCalibration(
         camera_id=camera.camera_id,
