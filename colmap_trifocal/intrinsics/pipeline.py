@@ -48,7 +48,8 @@ from .lens.warp import (
     warped_input,
 )
 from .options import CalibrationOptions
-from .polish.stage import Polished, PolishInput, polish
+from .polish.bundle import PolishInput
+from .polish.stage import Polished, polish
 from .results import CameraCalibration
 from .start.candidates import StartCandidate, first_start
 from .start.focal_search import FocalSearchResult, search_focal

@@ -86,40 +86,41 @@ def diagnose(tracks: list[np.ndarray], intrinsics: np.ndarray, workers: int | No
     jobs = [(np.ascontiguousarray(x[[0, view]]), K_inv) for x in examined for view in (1, 2)]
     pairs = map_jobs(_pair_job, jobs, workers)
     fractions = [fraction for fraction, _ in pairs]
-    angles, vectors, forward = [], [], []
-    for _, motion in pairs:
-        if motion is not None:
-            R, t = motion
-            rotation_vector = cv2.Rodrigues(R)[0].ravel()
-            angle = np.linalg.norm(rotation_vector)
-            angles.append(np.rad2deg(angle))
-            vectors.append(rotation_vector)
-            forward.append(abs(t[2]))
     if fractions and np.median(fractions) >= PLANAR_FRACTION:
         findings.append(
             f"planar structure (a homography explains {100 * np.median(fractions):.0f} % "
             "of the tracks)"
         )
-    if angles:
-        largest = float(np.max(angles))
-        # The 75th percentile: one pair's spurious rotation (an essential matrix
-        # measured with a K a few percent off) must not hide a translating camera.
-        typical = float(np.percentile(angles, 75))
-        if typical < MIN_ROTATION_DEG:
-            if np.median(forward) >= FORWARD_COSINE:
-                findings.append(
-                    f"forward motion with little rotation (mostly below {typical:.1f}°)"
-                )
-            else:
-                findings.append(f"pure translation (rotation mostly below {typical:.1f}°)")
-        elif _one_axis(np.array(vectors)):
-            mean = _principal_axis(np.array(vectors))
-            name = "xyz"[int(np.argmax(np.abs(mean)))]
-            findings.append(
-                f"rotation about one axis (planar motion; camera {name}, up to {largest:.0f}° "
-                "between views)"
-            )
+    motion = _motion_finding([motion for _, motion in pairs if motion is not None])
+    if motion is not None:
+        findings.append(motion)
     return "; ".join(findings) if findings else "no degenerate motion found"
+
+
+def _motion_finding(motions: list[tuple[np.ndarray, np.ndarray]]) -> str | None:
+    """What the view pairs' relative motions (R, unit t) show: pure translation or
+    forward motion, rotation about one axis, or nothing (None)."""
+    if not motions:
+        return None
+    vectors = [cv2.Rodrigues(R)[0].ravel() for R, _ in motions]
+    angles = [np.rad2deg(np.linalg.norm(vector)) for vector in vectors]
+    forward = [abs(t[2]) for _, t in motions]
+    largest = float(np.max(angles))
+    # The 75th percentile: one pair's spurious rotation (an essential matrix measured
+    # with a K a few percent off) must not hide a translating camera.
+    typical = float(np.percentile(angles, 75))
+    if typical < MIN_ROTATION_DEG:
+        if np.median(forward) >= FORWARD_COSINE:
+            return f"forward motion with little rotation (mostly below {typical:.1f}°)"
+        return f"pure translation (rotation mostly below {typical:.1f}°)"
+    if _one_axis(np.array(vectors)):
+        mean = _principal_axis(np.array(vectors))
+        name = "xyz"[int(np.argmax(np.abs(mean)))]
+        return (
+            f"rotation about one axis (planar motion; camera {name}, up to {largest:.0f}° "
+            "between views)"
+        )
+    return None
 
 
 def _pair_job(

@@ -44,6 +44,7 @@ from ..polish.calibrated_tracks import inlier_pixels, observed_tracks
 from ..polish.camera_setup import CameraSetup, Refined, pycolmap_camera_setup
 from ..polish.shared_camera import (
     Agreement,
+    RawObservations,
     SharedCamera,
     agree_and_adjust,
     shared_camera,
@@ -51,6 +52,7 @@ from ..polish.shared_camera import (
 from ..solve.parametrization import FreeParameters
 from .fit_statistics import (
     MAX_TRACKS,
+    RADIAL_MODELS,
     camera_params_std,
     cost_without_distortion,
     intrinsics_std_of,
@@ -243,10 +245,9 @@ def _screened(
         lens.tracks,
         lens.start,
         intrinsics,
-        setup,
-        lens.camera,
-        camera_model,
-        lens.workers,
+        setup.refined,
+        tied=camera_model in RADIAL_MODELS or lens.camera.single_focal,
+        workers=lens.workers,
     )
     if screened is None or screened >= SCREEN_FACTOR * chi2.isf(significance, 1):
         return None
@@ -276,20 +277,12 @@ def _adjust(
     Ceres fails."""
     camera, observed = lens.camera, lens.observed
     fits = observed_tracks(lens.tensors, lens.tracks, lens.start, MAX_TRACKS, lens.workers)
-    keypoints, distortion = None, None
+    raw = None
     if observed is not None:
         keypoints = [inlier_pixels(fit.tensor, observed.tracks, MAX_TRACKS) for fit in fits]
-        distortion = observed.distortion
-    shared = shared_camera(
-        fits,
-        lens.start,
-        intrinsics,
-        camera_model,
-        (camera.width, camera.height),
-        lens.workers,
-        keypoints,
-        distortion,
-    )
+        raw = RawObservations(keypoints, observed.distortion)
+    size = (camera.width, camera.height)
+    shared = shared_camera(fits, lens.start, intrinsics, camera_model, size, lens.workers, raw)
     if shared is None:
         return None
     with_distortion = replace(refined, distortion=True)

@@ -15,7 +15,7 @@ import pycolmap
 from ...database.cameras import CameraInfo
 from ...geometry.tensor_estimation import TripletTensor
 from ..polish.bundle import calibrated_information
-from ..polish.camera_setup import CameraSetup, Refined, refined_directions
+from ..polish.camera_setup import Refined, refined_directions
 from ..polish.information import reduced_information
 from ..polish.shared_camera import (
     FUNCTION_TOLERANCE,
@@ -139,9 +139,9 @@ def screen_statistic(
     tracks: dict[tuple[int, int, int], np.ndarray],
     start: np.ndarray,
     intrinsics: np.ndarray,
-    setup: CameraSetup,
-    camera: CameraInfo,
-    camera_model: str,
+    refined: Refined,
+    *,
+    tied: bool,
     workers: int | None = None,
 ) -> float | None:
     """The likelihood ratio of freeing k1, predicted without an adjustment (a score test).
@@ -150,8 +150,8 @@ def screen_statistic(
     its Schur complement and gradient on (fx, fy, cx, cy, k1) at k1 = 0
     (:func:`intrinsics.polish.information.reduced_information`); summed over the tensors, one
     Gauss–Newton step predicts how much the squared error falls with k1 free beyond
-    what the intrinsics alone take, over σ². Milliseconds per tensor. None where it
-    cannot be formed.
+    what the intrinsics alone take (``refined``; one focal length where ``tied``), over
+    σ². Milliseconds per tensor. None where it cannot be formed.
     """
     parts = [
         part
@@ -165,8 +165,7 @@ def screen_statistic(
     cost = sum(part.cost for part in parts)
     observations = sum(6 * part.num_tracks for part in parts)
     unknowns = sum(3 * part.num_tracks + 11 for part in parts)
-    tied = camera_model in RADIAL_MODELS or camera.single_focal
-    with_k = refined_directions(setup.refined, tied=tied, extra=1)
+    with_k = refined_directions(refined, tied=tied, extra=1)
     if observations <= unknowns + with_k.shape[1]:
         return None
     variance = cost / (observations - unknowns - with_k.shape[1])

@@ -225,17 +225,7 @@ def search_lens(
         for a, b in ((0, 1), (0, 2), (1, 2))
     ]
     grids = {DIVISION: np.array(LAMBDAS), POLYNOMIAL: np.array(KAPPAS)}
-    # λ = 0 and κ = 0 are the same (no) warp: evaluated once, with the division grid.
-    kappas = [float(value) for value in grids[POLYNOMIAL] if value != 0.0]
-    jobs = [(pairs, centre, scale, DIVISION, float(value)) for value in grids[DIVISION]]
-    jobs += [(pairs, centre, scale, POLYNOMIAL, value) for value in kappas]
-    evaluated = map_jobs(_epipolar_job, jobs, workers)
-    costs = {DIVISION: np.array(evaluated[: len(grids[DIVISION])])}
-    unwarped = float(costs[DIVISION][np.flatnonzero(grids[DIVISION] == 0.0)[0]])
-    by_kappa = dict(zip(kappas, evaluated[len(grids[DIVISION]) :], strict=True))
-    costs[POLYNOMIAL] = np.array(
-        [by_kappa.get(float(value), unwarped) for value in grids[POLYNOMIAL]]
-    )
+    costs, unwarped = _grid_costs(pairs, centre, scale, grids, workers)
     refined = {
         family: _refined_minimum(pairs, centre, scale, family, grid, costs[family])
         for family, grid in grids.items()
@@ -258,6 +248,28 @@ def search_lens(
         ratio=unwarped / max(cost, 1e-12),
         alternative=alternative,
     )
+
+
+def _grid_costs(
+    pairs: list[tuple[np.ndarray, np.ndarray]],
+    centre: np.ndarray,
+    scale: float,
+    grids: dict[str, np.ndarray],
+    workers: int | None,
+) -> tuple[dict[str, np.ndarray], float]:
+    """Each family's epipolar cost on its grid, and the unwarped tracks' cost: λ = 0 and
+    κ = 0 are the same (no) warp, evaluated once with the division grid."""
+    kappas = [float(value) for value in grids[POLYNOMIAL] if value != 0.0]
+    jobs = [(pairs, centre, scale, DIVISION, float(value)) for value in grids[DIVISION]]
+    jobs += [(pairs, centre, scale, POLYNOMIAL, value) for value in kappas]
+    evaluated = map_jobs(_epipolar_job, jobs, workers)
+    costs = {DIVISION: np.array(evaluated[: len(grids[DIVISION])])}
+    unwarped = float(costs[DIVISION][np.flatnonzero(grids[DIVISION] == 0.0)[0]])
+    by_kappa = dict(zip(kappas, evaluated[len(grids[DIVISION]) :], strict=True))
+    costs[POLYNOMIAL] = np.array(
+        [by_kappa.get(float(value), unwarped) for value in grids[POLYNOMIAL]]
+    )
+    return costs, unwarped
 
 
 def _refined_minimum(

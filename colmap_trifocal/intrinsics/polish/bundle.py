@@ -54,6 +54,7 @@ import numpy as np
 
 from ...common.parallel import map_jobs
 from ...geometry.tensor_estimation import TripletTensor
+from ..solve.fallback import FallbackSolution
 from ..solve.parametrization import FreeParameters
 from ..solve.uncertainty import (
     gauss_newton_step,
@@ -101,39 +102,52 @@ class TripletBundleResult:
         return np.asarray(np.maximum(self.covariance_std, self.jackknife_std))
 
 
-def polish_intrinsics(
-    tensors: list[TripletTensor],
-    tracks: dict[tuple[int, int, int], np.ndarray],
-    start: np.ndarray,
-    estimate: np.ndarray,
-    free_parameters: FreeParameters,
-    size: tuple[int, int],
-    tau: float,
-    workers: int | None = None,
-) -> TripletBundleResult | None:
-    """The ML intrinsics of the agreeing triplets, from the constraint estimate.
+@dataclass(frozen=True)
+class PolishInput:
+    """What the polish reads.
 
-    Args:
-        tensors: the tensors, normalised by ``start``.
-        tracks: per triplet (image ids), all its tracks (3, n, 2) in pixels; each
-            tensor's ``inliers`` picks from them.
-        start: (fx0, fy0, cx0, cy0) of the tensors' normalisation, pixels.
-        estimate: the constraint solve's (fx, fy, cx, cy), held values included.
-        free_parameters: what is estimated (see :func:`pycolmap_camera_setup`).
+    Attributes:
+        tensors: the solve's tensors, normalised by ``start`` (pixels).
+        tracks: per triplet (image ids), its tracks (3, n, 2), pixels.
+        start: the tensors' normalisation (fx0, fy0, cx0, cy0), pixels.
+        estimate: the constraint estimate (fx, fy, cx, cy), pixels.
+        fallback: the constraint solve (free parameters, std, jackknife).
+        agreeing: tensors that agree with ``estimate``.
         size: (width, height) of the images, pixels.
-        tau: the MSAC threshold; triplets with ``λ < τ²`` agree.
+        tau: the MSAC threshold.
+        camera_id: for messages.
         workers: threads for the per-triplet work (None: one per core).
-
-    Returns None when ``free_parameters`` are not expressible, no triplet agrees, or
-    Ceres fails.
     """
-    start_values = camera_start(free_parameters, estimate)
+
+    tensors: list[TripletTensor]
+    tracks: dict[tuple[int, int, int], np.ndarray]
+    start: np.ndarray
+    estimate: np.ndarray
+    fallback: FallbackSolution
+    agreeing: int
+    size: tuple[int, int]
+    tau: float
+    camera_id: int
+    workers: int | None = None
+
+
+def polish_intrinsics(given: PolishInput) -> TripletBundleResult | None:
+    """The ML intrinsics of the agreeing triplets (``λ < τ²``), from the constraint
+    estimate (held values included); each tensor's ``inliers`` pick its tracks.
+
+    Returns None when the free parameters are not expressible
+    (:func:`intrinsics.polish.camera_setup.pycolmap_camera_setup`), no triplet agrees,
+    or Ceres fails.
+    """
+    tensors, tracks, start, estimate = given.tensors, given.tracks, given.start, given.estimate
+    tau, workers = given.tau, given.workers
+    start_values = camera_start(given.fallback.free_parameters, estimate)
     if start_values is None or not tensors:
         return None
     setup, intrinsics = start_values
     limit = tau**2
     observed = observed_tracks(tensors, tracks, start, workers=workers)
-    shared = shared_camera(observed, start, intrinsics, setup.model, size, workers)
+    shared = shared_camera(observed, start, intrinsics, setup.model, given.size, workers)
     if shared is None:
         return None
     agreement = agree_and_adjust(shared, limit, setup.refined)

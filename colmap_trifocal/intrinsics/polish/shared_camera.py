@@ -257,6 +257,16 @@ class SharedCamera:
         )
 
 
+@dataclass(frozen=True)
+class RawObservations:
+    """Where the triplets are observed through the shared camera's distortion: per
+    triplet its keypoints (3, n, 2) as observed, pixels, and the distortion (COLMAP's
+    order) the camera starts at."""
+
+    keypoints: list[np.ndarray]
+    distortion: np.ndarray
+
+
 def shared_camera(
     observed: list[Observed],
     start: np.ndarray,
@@ -264,16 +274,15 @@ def shared_camera(
     camera_model: str,
     size: tuple[int, int],
     workers: int | None = None,
-    keypoints: list[np.ndarray] | None = None,
-    distortion: np.ndarray | None = None,
+    raw: RawObservations | None = None,
 ) -> SharedCamera | None:
     """Every triplet whose calibrated cameras can be formed at K, in one reconstruction
-    (the cameras over ``workers`` threads; None: one per core). With ``keypoints`` (per
-    triplet of ``observed``, (3, n, 2) pixels) the triplets are observed there through
-    a camera whose distortion starts at ``distortion`` (:meth:`SharedCamera.add`)."""
-    shared = SharedCamera(intrinsics, camera_model, *size, distortion)
+    (the cameras over ``workers`` threads; None: one per core). With ``raw`` the
+    triplets are observed at its keypoints through a camera whose distortion starts at
+    its distortion (:meth:`SharedCamera.add`)."""
+    shared = SharedCamera(intrinsics, camera_model, *size, None if raw is None else raw.distortion)
     jobs = [(triplet, start, intrinsics) for triplet in observed]
-    seen = keypoints if keypoints is not None else [None] * len(observed)
+    seen = raw.keypoints if raw is not None else [None] * len(observed)
     cameras_of = map_jobs(_cameras_job, jobs, workers)
     for triplet, cameras, at in zip(observed, cameras_of, seen, strict=True):
         if cameras is not None and np.all(np.isfinite(cameras)):

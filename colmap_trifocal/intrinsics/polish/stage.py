@@ -44,7 +44,7 @@ from ...geometry.tensor_estimation import TripletTensor
 from ..results import PARAMETER_NAMES
 from ..solve.fallback import FallbackSolution
 from ..solve.uncertainty import jackknife_covariance
-from .bundle import TripletBundleResult, polish_intrinsics, predict_polish
+from .bundle import PolishInput, TripletBundleResult, polish_intrinsics, predict_polish
 from .camera_setup import pycolmap_camera_setup
 
 #: Largest ratio of the polish's jackknife variance to the constraint solve's at
@@ -79,35 +79,6 @@ class Polished:
     summary: dict[str, Any] | None
 
 
-@dataclass(frozen=True)
-class PolishInput:
-    """What the polish reads.
-
-    Attributes:
-        tensors: the solve's tensors, normalised by ``start`` (pixels).
-        tracks: per triplet (image ids), its tracks (3, n, 2), pixels.
-        start: the tensors' normalisation (fx0, fy0, cx0, cy0), pixels.
-        estimate: the constraint estimate (fx, fy, cx, cy), pixels.
-        fallback: the constraint solve (free parameters, std, jackknife).
-        agreeing: tensors that agree with ``estimate``.
-        size: (width, height) of the images, pixels.
-        tau: the MSAC threshold.
-        camera_id: for messages.
-        workers: threads for the per-triplet work (None: one per core).
-    """
-
-    tensors: list[TripletTensor]
-    tracks: dict[tuple[int, int, int], np.ndarray]
-    start: np.ndarray
-    estimate: np.ndarray
-    fallback: FallbackSolution
-    agreeing: int
-    size: tuple[int, int]
-    tau: float
-    camera_id: int
-    workers: int | None = None
-
-
 def polish(given: PolishInput) -> Polished:
     """The polished estimate, or the constraint estimate with the reason it was kept."""
     tensors, tracks, start, estimate = given.tensors, given.tracks, given.start, given.estimate
@@ -117,7 +88,6 @@ def polish(given: PolishInput) -> Polished:
         given.camera_id,
         given.workers,
     )
-    size, tau = given.size, given.tau
     unchanged = Polished(estimate, fallback.relative_std, agreeing, None)
     free_parameters = fallback.free_parameters
     if pycolmap_camera_setup(free_parameters) is None:
@@ -129,9 +99,7 @@ def polish(given: PolishInput) -> Polished:
         logger.info("camera %d: bundle adjustment of the triplets not run: %s", camera_id, skip)
         not_run = {"used": False, "agreeing": None, "constraints": constraints, "rejected": skip}
         return Polished(estimate, fallback.relative_std, agreeing, not_run)
-    result = polish_intrinsics(
-        tensors, tracks, start, estimate, free_parameters, size, tau, workers
-    )
+    result = polish_intrinsics(given)
     summary: dict[str, object] = {
         "used": False,
         "agreeing": None if result is None else int(result.agreeing.sum()),

@@ -48,11 +48,8 @@ from scipy.optimize import least_squares
 
 from ...geometry.tensor_estimation import TripletTensor
 from ...geometry.trifocal import (
-    CONSTRAINT_RANK,
     calibrate_tensor,
-    normalize_tensor,
     quartic_constraints,
-    tensor_from_cameras,
 )
 from .observability import (
     conditioned_covariance,
@@ -61,45 +58,19 @@ from .observability import (
 from .parametrization import FULL, Parametrization
 from .theta import theta_to_matrix
 from .uncertainty import combined_information, jackknife_replicates, one_step_replicate
+from .whitening import whitening_matrices
 
 #: MSAC threshold on the whitened constraint norm ‖r_i‖ (dimensionless).
 #: ‖r‖² ~ χ²(7) for an exact tensor: the 99 % quantile is 18.5 (‖r‖ = 4.3). Real
 #: tensors carry unmodelled error (residual distortion, correlated keypoints), so
 #: τ lies above that, within the distribution of ‖r‖ at the true K on real scenes.
 MSAC_TAU = 10.0
-_FD_STEP_CAMERA = 1e-6
 _FD_STEP_THETA = 1e-7
 #: Sensitivity of the raw constraints below which a direction of θ is null (see
 #: :meth:`ConstraintProblem.insensitive_directions`).
 RAW_SENSITIVITY_FLOOR = 1e-6
 #: All four parameters free, θ = p.
 FULL_PARAMETRIZATION = FULL.parametrization(np.ones(4), np.ones(4))
-
-
-def _constraints_of_cameras(P: np.ndarray, M: np.ndarray) -> np.ndarray:
-    """Constraints (..., 15) of the tensor of cameras P (..., 24) calibrated by M (3, 3)."""
-    P2 = P[..., :12].reshape(P.shape[:-1] + (3, 4))
-    P3 = P[..., 12:].reshape(P.shape[:-1] + (3, 4))
-    return quartic_constraints(calibrate_tensor(normalize_tensor(tensor_from_cameras(P2, P3)), M))
-
-
-def whitening_matrices(tensors: list[TripletTensor], theta: np.ndarray) -> np.ndarray:
-    """Whitening matrices (n, 7, 15) of the constraints of each tensor, evaluated at θ.
-
-    ``W_i = Λ^{-1/2} Vᵀ`` from the top-7 eigenpairs of ``Σ_c = J Σ_P Jᵀ``.
-    """
-    M = theta_to_matrix(np.asarray(theta, dtype=float))
-    P = np.stack([np.concatenate([t.P2.ravel(), t.P3.ravel()]) for t in tensors])  # (n, 24)
-    steps = _FD_STEP_CAMERA * np.eye(24)
-    plus = _constraints_of_cameras(P[:, None, :] + steps, M)  # (n, 24, 15)
-    minus = _constraints_of_cameras(P[:, None, :] - steps, M)
-    J = np.swapaxes(plus - minus, 1, 2) / (2 * _FD_STEP_CAMERA)  # (n, 15, 24)
-    covariance = np.stack([t.camera_covariance for t in tensors])
-    sigma_c = J @ covariance @ np.swapaxes(J, 1, 2)
-    eigenvalues, eigenvectors = np.linalg.eigh(0.5 * (sigma_c + np.swapaxes(sigma_c, 1, 2)))
-    top_values = np.maximum(eigenvalues[:, -CONSTRAINT_RANK:], 1e-300)
-    top_vectors = eigenvectors[:, :, -CONSTRAINT_RANK:]
-    return np.asarray(np.swapaxes(top_vectors, 1, 2) / np.sqrt(top_values)[:, :, None])
 
 
 @dataclass
@@ -345,16 +316,11 @@ def solve(
     span = span or parametrization
     theta0 = parametrization.theta(np.zeros(parametrization.dimension))
     problem = ConstraintProblem.build(tensors, theta0, parametrization)
-    n = len(tensors)
     candidates = scores = None
     if method == "direct":
         theta = problem.least_squares(theta0)
     else:
-        candidates = problem.per_tensor_estimates(theta0)
-        # ‖r_j(θ_i)‖ for every candidate i (rows) and tensor j (columns).
-        all_norms = np.linalg.norm(problem.residuals(candidates), axis=-1)
-        scores = 1.0 - np.mean(np.minimum(all_norms / tau, 1.0), axis=1)
-        scores[~np.all(np.isfinite(candidates), axis=1)] = -np.inf
+        candidates, scores = _msac_candidates(problem, theta0, tau)
         theta = candidates[int(np.argmax(scores))]
         if method == "msac-opt":
             # Re-whiten at the msac estimate: the covariance of the constraints depends on K.
@@ -363,14 +329,7 @@ def solve(
     residuals = problem.residuals(theta)
     jacobians = problem.jacobians(theta)
     norms = np.linalg.norm(residuals, axis=-1)
-    # Information over all tensors for direct, over the MSAC inliers otherwise; the
-    # fit's own weights (IRLS: 1/‖r_i‖ on inliers) for the jackknife replicates.
-    inliers = norms < tau
-    if method == "direct" or not inliers.any():
-        weights = fit_weights = np.ones(n)
-    else:
-        weights = inliers.astype(float)
-        fit_weights = np.where(inliers, 1.0 / np.maximum(norms, 1e-3), 0.0)
+    weights, fit_weights = _weights(norms, tau, direct=method == "direct")
 
     def replicate(keep: np.ndarray) -> np.ndarray | None:
         return one_step_replicate(
@@ -392,3 +351,26 @@ def solve(
         per_tensor_theta=candidates,
         per_tensor_scores=scores,
     )
+
+
+def _msac_candidates(
+    problem: ConstraintProblem, theta0: np.ndarray, tau: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each tensor's own estimate (n, 4) and its MSAC score over all tensors (n,; -inf
+    where not finite)."""
+    candidates = problem.per_tensor_estimates(theta0)
+    # ‖r_j(θ_i)‖ for every candidate i (rows) and tensor j (columns).
+    all_norms = np.linalg.norm(problem.residuals(candidates), axis=-1)
+    scores = 1.0 - np.mean(np.minimum(all_norms / tau, 1.0), axis=1)
+    scores[~np.all(np.isfinite(candidates), axis=1)] = -np.inf
+    return candidates, scores
+
+
+def _weights(norms: np.ndarray, tau: float, *, direct: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The information's weights (all tensors for direct, else the MSAC inliers) and the
+    fit's own (IRLS: 1/‖r_i‖ on inliers) for the jackknife replicates."""
+    inliers = norms < tau
+    if direct or not inliers.any():
+        ones = np.ones(len(norms))
+        return ones, ones
+    return inliers.astype(float), np.where(inliers, 1.0 / np.maximum(norms, 1e-3), 0.0)

@@ -179,12 +179,38 @@ def focal_range(width: int, height: int) -> tuple[float, float]:
     )
 
 
+#: Tracks per triplet the fine grid uses (a random subset; the coarse grid half).
+MAX_TRACKS = 150
+
+
+@dataclass(frozen=True)
+class _Grid:
+    """What every cost evaluation of one search shares: each triplet's track subset
+    (3, n, 2) in pixels, the start's principal point, the hypotheses' inlier threshold
+    (pixels), and the processes and progress bar of the work."""
+
+    subsets: list[np.ndarray]
+    principal_point: np.ndarray
+    threshold_px: float
+    workers: int | None
+    progress: bool
+
+    def costs(
+        self, focals: np.ndarray, count: int, iterations: tuple[int, int] = (100, 1000)
+    ) -> np.ndarray:
+        """(triplets, focals) cost of each candidate focal length on ``count`` tracks."""
+        jobs = [
+            (x[:, :count], focals, self.principal_point, self.threshold_px, *iterations)
+            for x in self.subsets
+        ]
+        return np.array(map_jobs(_costs_job, jobs, self.workers, "focal search", self.progress))
+
+
 def search_focal(
     tracks: list[np.ndarray],
     start: np.ndarray,
     rng: np.random.Generator,
     threshold_px: float = 4.0,
-    max_tracks: int = 150,
     workers: int | None = None,
     progress: bool = False,
     image_size: tuple[int, int] | None = None,
@@ -201,43 +227,46 @@ def search_focal(
         tracks: per triplet, undistorted pixel tracks (3, n, 2).
         start: starting (fx, fy, cx, cy) in pixels; the principal point is kept and
             the result is reported relative to sqrt(fx · fy).
-        rng: draws the track subsets (reproducible for a seeded generator).
+        rng: draws the track subsets (``MAX_TRACKS`` per triplet; reproducible for a
+            seeded generator).
         threshold_px: inlier threshold of the hypotheses, pixels.
-        max_tracks: tracks per triplet used by the fine grid (a random subset).
         workers: processes (None: one per core).
         progress: show a progress bar.
         image_size: (width, height) in pixels.
     """
     focal0 = float(np.sqrt(start[0] * start[1]))
-    principal_point = np.asarray(start[2:4], float)
     subsets = []
     for x in tracks:
         n = x.shape[1]
-        subsets.append(x[:, rng.choice(n, size=min(n, max_tracks), replace=False)])
-
-    def evaluate(
-        focals: np.ndarray, count: int, iterations: tuple[int, int] = (100, 1000)
-    ) -> np.ndarray:
-        jobs = [(x[:, :count], focals, principal_point, threshold_px, *iterations) for x in subsets]
-        return np.array(map_jobs(_costs_job, jobs, workers, "focal search", progress))
-
+        subsets.append(x[:, rng.choice(n, size=min(n, MAX_TRACKS), replace=False)])
+    grid = _Grid(subsets, np.asarray(start[2:4], float), threshold_px, workers, progress)
     if image_size is None:
-        focals = focal0 * SEARCH_FACTORS
-        per_triplet = evaluate(focals, max_tracks)
-        result = _result(focals, per_triplet, focal0, focals, per_triplet.sum(axis=0))
-        costs = per_triplet.sum(axis=0)
-        result.start_ratio = float(np.interp(0.0, np.log(SEARCH_FACTORS), costs)) / max(
-            float(costs.min()), 1e-12
-        )
-        return result
+        return _around_start(grid, focal0)
+    return _coarse_to_fine(grid, focal0, image_size)
+
+
+def _around_start(grid: _Grid, focal0: float) -> FocalSearchResult:
+    """The search on one grid of ``SEARCH_FACTORS`` around the start's focal length."""
+    focals = focal0 * SEARCH_FACTORS
+    per_triplet = grid.costs(focals, MAX_TRACKS)
+    result = _result(focals, per_triplet, focal0, focals, per_triplet.sum(axis=0))
+    costs = per_triplet.sum(axis=0)
+    result.start_ratio = float(np.interp(0.0, np.log(SEARCH_FACTORS), costs)) / max(
+        float(costs.min()), 1e-12
+    )
+    return result
+
+
+def _coarse_to_fine(grid: _Grid, focal0: float, image_size: tuple[int, int]) -> FocalSearchResult:
+    """The coarse grid over the fields of view, then the fine grid around its minimum."""
     low, high = focal_range(*image_size)
     coarse = np.geomspace(low, high, int(np.ceil(np.log(high / low) / np.log(COARSE_RATIO))) + 1)
-    coarse_costs = evaluate(coarse, max(max_tracks // 2, 1), COARSE_ITERATIONS).sum(axis=0)
+    coarse_costs = grid.costs(coarse, max(MAX_TRACKS // 2, 1), COARSE_ITERATIONS).sum(axis=0)
     best = int(np.argmin(coarse_costs))
     ratio = coarse[1] / coarse[0]
     fine = coarse[best] * ratio ** np.linspace(-1.0, 1.0, FINE_STEPS)
-    per_triplet = evaluate(fine, max_tracks, FINE_ITERATIONS)
-    start_cost = float(evaluate(np.array([focal0]), max_tracks, FINE_ITERATIONS).sum())
+    per_triplet = grid.costs(fine, MAX_TRACKS, FINE_ITERATIONS)
+    start_cost = float(grid.costs(np.array([focal0]), MAX_TRACKS, FINE_ITERATIONS).sum())
     all_focals = np.concatenate([coarse, fine, [focal0]])
     all_costs = np.concatenate([coarse_costs, per_triplet.sum(axis=0), [start_cost]])
     order = np.argsort(all_focals)
