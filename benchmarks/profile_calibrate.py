@@ -35,7 +35,7 @@ STAGE_FUNCTIONS = (
     ("snapshot.py", "read_database"),
     ("camera_input.py", "camera_input"),
     ("triplet_selection.py", "select_camera_triplets"),
-    ("tracks.py", "plane_parallax"),
+    ("parallax.py", "plane_parallax"),
     ("focal_search.py", "search_focal"),
     ("tensor_estimation.py", "calibrated_hypothesis"),
     ("tensor_set.py", "at"),

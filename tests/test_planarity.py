@@ -6,28 +6,21 @@ import numpy as np
 import pytest
 
 from colmap_trifocal import CalibrationOptions, calibrate_contents
+from colmap_trifocal.geometry.parallax import plane_parallax, triplet_points
 from colmap_trifocal.geometry.planarity import (
     PLANAR_SHARE,
     dominant_plane,
     plane_parallax_cameras,
 )
 from colmap_trifocal.geometry.projective_ba import refine_triplet
-from colmap_trifocal.geometry.tensor_estimation import (
-    TensorEstimationOptions,
-    estimate_triplet_tensor,
-    transfer_errors,
-)
-from colmap_trifocal.geometry.tracks import (
-    MatchGraph,
-    plane_parallax,
-    select_triplets,
-    triplet_points,
-)
+from colmap_trifocal.geometry.tensor_estimation import TensorEstimationOptions, transfer_errors
+from colmap_trifocal.geometry.tracks import MatchGraph, select_triplets
 from colmap_trifocal.geometry.trifocal import (
     intrinsics_matrix,
     normalize_tensor,
     tensor_from_cameras,
 )
+from colmap_trifocal.geometry.triplet_fit import estimate_triplet_tensor
 from colmap_trifocal.intrinsics.solve.constraints import MSAC_TAU, ConstraintProblem
 from colmap_trifocal.intrinsics.solve.theta import intrinsics_to_theta
 from colmap_trifocal.synthetic.database import scene_contents

@@ -25,7 +25,6 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from colmap_trifocal.database.snapshot import DatabaseContents, read_database
-from colmap_trifocal.geometry.tensor_estimation import estimate_triplet_tensor
 from colmap_trifocal.geometry.trifocal import (
     calibrate_tensor,
     intrinsics_matrix,
@@ -34,6 +33,7 @@ from colmap_trifocal.geometry.trifocal import (
     quartic_constraints,
     tensor_from_cameras,
 )
+from colmap_trifocal.geometry.triplet_fit import estimate_triplet_tensor
 from colmap_trifocal.intrinsics.api import CalibrationOptions, CameraCalibration, calibrate_contents
 
 #: No deadline, moderate example counts: the whole file runs in well under a minute.

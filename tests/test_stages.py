@@ -14,8 +14,8 @@ from colmap_trifocal import CalibrationOptions, calibrate_contents
 from colmap_trifocal.cli import main
 from colmap_trifocal.common.bundle_adjustment import bundle_adjustment_options
 from colmap_trifocal.common.timing import STAGES
-from colmap_trifocal.geometry.tensor_estimation import estimate_triplet_tensor
 from colmap_trifocal.geometry.trifocal import intrinsics_matrix
+from colmap_trifocal.geometry.triplet_fit import estimate_triplet_tensor
 from colmap_trifocal.intrinsics.polish.information import reduced_information
 from colmap_trifocal.intrinsics.solve.constraints import ConstraintProblem
 from colmap_trifocal.intrinsics.solve.theta import intrinsics_to_theta

@@ -10,8 +10,6 @@ from colmap_trifocal.geometry.projective_ba import refine_triplet
 from colmap_trifocal.geometry.tensor_estimation import (
     TensorEstimationOptions,
     TripletTensor,
-    estimate_triplet_tensor,
-    fit_triplet,
     transfer_errors,
 )
 from colmap_trifocal.geometry.trifocal import (
@@ -22,6 +20,7 @@ from colmap_trifocal.geometry.trifocal import (
     quartic_constraints,
     tensor_from_cameras,
 )
+from colmap_trifocal.geometry.triplet_fit import estimate_triplet_tensor, fit_triplet
 from colmap_trifocal.synthetic.facade import facade_scene
 from colmap_trifocal.synthetic.scenes import (
     SyntheticScene,

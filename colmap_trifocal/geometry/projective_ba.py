@@ -151,57 +151,77 @@ def refine_triplet(
     P3 = P3 / np.linalg.norm(P3)
     points = initial_points(x, P2, P3) if points is None else points.copy()
     cost = float(np.sum(_residuals(x, P2, P3, points, scale) ** 2))
-    damping, growth = INITIAL_DAMPING, 2.0
+    state = _State(P2, P3, points, cost)
     iteration = 0
     n = len(points)
     dof = max(6 * n - (3 * n + 24 - GAUGE_DIMENSION), 1)
     for iteration in range(1, max_iterations + 1):  # noqa: B007 - reported below
-        system = _NormalEquations(*_linearise(x, P2, P3, points, scale)[:5])
-        improved = near_minimum = False
-        relative_decrease = 0.0
-        while damping < 1e12:
-            step = system.step(damping)
-            if step is None:
-                break
-            delta_c, delta_p, predicted = step
-            P2_new = P2 + delta_c[:12].reshape(3, 4)
-            P3_new = P3 + delta_c[12:].reshape(3, 4)
-            points_new = points + delta_p
-            new_cost = float(np.sum(_residuals(x, P2_new, P3_new, points_new, scale) ** 2))
-            if np.isfinite(new_cost) and new_cost < cost:
-                gain = (cost - new_cost) / max(predicted, 1e-300)
-                P2, P3 = P2_new / np.linalg.norm(P2_new), P3_new / np.linalg.norm(P3_new)
-                points = points_new
-                relative_decrease = (cost - new_cost) / max(cost, 1e-300)
-                threshold = DECREMENT_STOP * new_cost / dof
-                if predicted < threshold:
-                    # The damped step predicted little: so does the Gauss–Newton step
-                    # from the same point where the optimum is near (checked, not
-                    # assumed, since damping shortens the step along a flat valley).
-                    gauss_newton = system.step(0.0)
-                    near_minimum = gauss_newton is not None and gauss_newton[2] < threshold
-                cost = new_cost
-                damping *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
-                growth = 2.0
-                improved = True
-                break
-            damping *= growth
-            growth *= 2.0
+        improved, relative_decrease, near_minimum = _iterate(state, x, scale, dof)
         if not improved or relative_decrease < tolerance or near_minimum:
             break
-    U, V, W, _, _, r = _linearise(x, P2, P3, points, scale)
+    U, V, W, _, _, r = _linearise(x, state.P2, state.P3, state.points, scale)
     # pinv: a point seen along its own epipolar direction has a singular 3x3 block.
     S = U - _contract_points(W @ np.linalg.pinv(V), W)
-    sigma2 = cost / dof
+    sigma2 = state.cost / dof
     return ProjectiveBAResult(
-        P2=P2,
-        P3=P3,
-        points=points,
+        P2=state.P2,
+        P3=state.P3,
+        points=state.points,
         squared_errors=np.einsum("nva,nva->n", r, r),
         camera_covariance=sigma2 * gauge_free_inverse(S),
         sigma=float(np.sqrt(sigma2)),
         iterations=iteration,
     )
+
+
+@dataclass
+class _State:
+    """Where the refinement is: the cameras (unit norm), the points, the cost (px²), and
+    Levenberg's damping λ with its growth factor after a rejected step."""
+
+    P2: np.ndarray
+    P3: np.ndarray
+    points: np.ndarray
+    cost: float
+    damping: float = INITIAL_DAMPING
+    growth: float = 2.0
+
+
+def _iterate(state: _State, x: np.ndarray, scale: np.ndarray, dof: int) -> tuple[bool, float, bool]:
+    """One Levenberg–Marquardt iteration on ``state``, in place: damped steps until one
+    lowers the cost. Returns whether one did, its relative decrease, and whether the
+    optimum is near (the Gauss–Newton step predicts less than ``DECREMENT_STOP`` σ²)."""
+    system = _NormalEquations(*_linearise(x, state.P2, state.P3, state.points, scale)[:5])
+    while state.damping < 1e12:
+        step = system.step(state.damping)
+        if step is None:
+            break
+        delta_c, delta_p, predicted = step
+        P2_new = state.P2 + delta_c[:12].reshape(3, 4)
+        P3_new = state.P3 + delta_c[12:].reshape(3, 4)
+        points_new = state.points + delta_p
+        new_cost = float(np.sum(_residuals(x, P2_new, P3_new, points_new, scale) ** 2))
+        if np.isfinite(new_cost) and new_cost < state.cost:
+            cost = state.cost
+            gain = (cost - new_cost) / max(predicted, 1e-300)
+            state.P2, state.P3 = P2_new / np.linalg.norm(P2_new), P3_new / np.linalg.norm(P3_new)
+            state.points = points_new
+            relative_decrease = (cost - new_cost) / max(cost, 1e-300)
+            threshold = DECREMENT_STOP * new_cost / dof
+            near_minimum = False
+            if predicted < threshold:
+                # The damped step predicted little: so does the Gauss–Newton step from
+                # the same point where the optimum is near (checked, not assumed, since
+                # damping shortens the step along a flat valley).
+                gauss_newton = system.step(0.0)
+                near_minimum = gauss_newton is not None and gauss_newton[2] < threshold
+            state.cost = new_cost
+            state.damping *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+            state.growth = 2.0
+            return True, relative_decrease, near_minimum
+        state.damping *= state.growth
+        state.growth *= 2.0
+    return False, 0.0, False
 
 
 @dataclass

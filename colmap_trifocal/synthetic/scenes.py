@@ -30,12 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry.tensor_estimation import (
-    TensorEstimationOptions,
-    TripletTensor,
-    estimate_triplet_tensor,
-)
+from ..geometry.tensor_estimation import TensorEstimationOptions, TripletTensor
 from ..geometry.trifocal import intrinsics_matrix, normalize_tensor, tensor_from_cameras
+from ..geometry.triplet_fit import estimate_triplet_tensor
 
 #: Intrinsics (fx, fy, cx, cy) of the Strecha fountain-P11 camera, pixels (3072 x 2048).
 DEFAULT_INTRINSICS = np.array([2759.48, 2764.16, 1520.69, 1006.81])

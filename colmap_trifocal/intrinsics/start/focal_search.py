@@ -36,8 +36,9 @@ import numpy as np
 
 from ...common.parabola import parabola_step
 from ...common.parallel import map_jobs
-from ...geometry.tensor_estimation import calibrated_hypothesis, transfer_errors
+from ...geometry.tensor_estimation import transfer_errors
 from ...geometry.trifocal import intrinsics_matrix
+from ...geometry.triplet_fit import calibrated_hypothesis
 
 #: Fields of view searched, degrees across the longer image side: from a long
 #: telephoto (5°, f = 11.4 · max(w, h)) to a fisheye-like wide angle (150°,

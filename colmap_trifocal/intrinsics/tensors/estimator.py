@@ -27,8 +27,9 @@ import numpy as np
 from ...common.errors import CalibrationError
 from ...common.log import logger
 from ...common.parallel import map_jobs
-from ...geometry.tensor_estimation import TripletFit, TripletTensor, fit_triplet
+from ...geometry.tensor_estimation import TripletTensor
 from ...geometry.trifocal import intrinsics_matrix
+from ...geometry.triplet_fit import TripletFit, fit_triplet
 from ..inputs.triplet_selection import CameraTracks
 from ..options import CalibrationOptions
 from ..solve.constraints import ConstraintProblem
