@@ -60,6 +60,7 @@ def estimate_triplet_tensor(
     K0: np.ndarray,
     rng: np.random.Generator,
     options: TensorEstimationOptions | None = None,
+    *,
     second_start: bool = True,
 ) -> TripletTensor | None:
     """MSAC + Gold Standard tensor for one triplet (:func:`fit_triplet`'s tensor).
@@ -78,7 +79,7 @@ def estimate_triplet_tensor(
     Returns:
         The refined tensor, or None when fewer than ``min_inliers`` tracks agree.
     """
-    fit = fit_triplet(image_ids, x_px, K0, rng, options, second_start)
+    fit = fit_triplet(image_ids, x_px, K0, rng, options, second_start=second_start)
     return None if fit is None else fit.tensor
 
 
@@ -227,6 +228,7 @@ def fit_triplet(
     K0: np.ndarray,
     rng: np.random.Generator,
     options: TensorEstimationOptions | None = None,
+    *,
     second_start: bool = True,
 ) -> TripletFit | None:
     """The MSAC hypotheses of one triplet and their refined starts (see the module

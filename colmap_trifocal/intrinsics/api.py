@@ -179,7 +179,7 @@ def add_read_seconds(results: Sequence[CameraCalibration], seconds: float) -> No
 
 
 def updated_cameras(
-    results: Sequence[CameraCalibration], determined_only: bool = True
+    results: Sequence[CameraCalibration], *, determined_only: bool = True
 ) -> dict[int, CameraInfo]:
     """camera_id -> stored camera with its group's estimate, for every camera of every group.
 

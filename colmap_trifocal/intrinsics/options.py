@@ -122,7 +122,7 @@ def parse_prior(text: str) -> tuple[float, float, float, float]:
     return values
 
 
-def check_camera_values(camera: CameraInfo, uses_stored: bool) -> None:
+def check_camera_values(camera: CameraInfo, *, uses_stored: bool) -> None:
     """Refuse a camera whose stored values the calibration cannot start from.
 
     The image size must be positive. The stored params must be finite with positive

@@ -335,6 +335,7 @@ class SkippedGroup:
 def apply_cameras(
     reconstruction: pycolmap.Reconstruction,
     cameras: Mapping[int, CameraInfo],
+    *,
     require_all: bool = True,
 ) -> list[int]:
     """Write each camera's params into the reconstruction's camera of the same id.

@@ -136,7 +136,7 @@ def _reported(given: AssessInput) -> _Reported:
     estimate, relative_std, distortion, lens_note = with_lens(
         polished.intrinsics, polished.relative_std, lens, camera.model, focal_scale
     )
-    estimated = free_parameters.estimated(camera.single_focal)
+    estimated = free_parameters.estimated(single_focal=camera.single_focal)
     within = (relative_std < fallback.tolerances) & fallback.moved
     observable = {
         name: estimated[name] and bool(ok) for name, ok in zip(PARAMETER_NAMES, within, strict=True)

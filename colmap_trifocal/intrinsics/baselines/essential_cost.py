@@ -64,7 +64,7 @@ def essential_cost(
     return float(np.sum(w * c**2))
 
 
-def _basis(single_focal: bool) -> np.ndarray:
+def _basis(*, single_focal: bool) -> np.ndarray:
     """Derivatives ``dM/dθ_p`` as a ``(P, 3, 3)`` stack for the relative parametrisation."""
     rows = [[0, 0], [1, 1], [0, 2], [1, 2]]
     b = np.zeros((4, 3, 3))
@@ -115,7 +115,9 @@ class EssentialProblem:
         gmv = g @ (m @ vk)  # (n, 3, 2)
         gtmu = np.swapaxes(g, 1, 2) @ (m @ uk)  # (n, 3, 2)
         dsig_dm = np.einsum("nrk,nck->nkrc", gmv, uk) + np.einsum("nrk,nck->nkrc", gtmu, vk)
-        dsig = np.einsum("nkrc,prc->nkp", dsig_dm, _basis(self.single_focal))  # (n, 2, P)
+        dsig = np.einsum(
+            "nkrc,prc->nkp", dsig_dm, _basis(single_focal=self.single_focal)
+        )  # (n, 2, P)
         d1, d2 = dsig[:, 0, :], dsig[:, 1, :]
         if self.form == "ratio":
             dc = (d1 * s2[:, None] - d2 * s1[:, None]) / (s2**2)[:, None]

@@ -347,7 +347,9 @@ def _fitted(
     )
     intrinsics_std = intrinsics_std_of(fitted, params_std)
     distortion_std = params_std[extra]
-    jackknife = jackknife_std(shared, agreeing, fitted, lens.tensors, refined.principal_point)
+    jackknife = jackknife_std(
+        shared, agreeing, fitted, lens.tensors, refine_principal_point=refined.principal_point
+    )
     if jackknife is not None:
         intrinsics_std = np.maximum(intrinsics_std, jackknife[:4])
         distortion_std = np.maximum(distortion_std, jackknife[4:])

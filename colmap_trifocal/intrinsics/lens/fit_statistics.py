@@ -107,6 +107,7 @@ def jackknife_std(
     agreeing: list[int],
     fitted: CameraInfo,
     tensors: list[TripletTensor],
+    *,
     refine_principal_point: bool,
 ) -> np.ndarray | None:
     """(4 + m,) delete-a-group-of-images jackknife std of (fx, fy, cx, cy, k1[, k2]) of

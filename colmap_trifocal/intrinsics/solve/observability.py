@@ -172,11 +172,11 @@ def tolerance(start: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 def worst_estimated_std(
-    std: np.ndarray, tolerances: np.ndarray, free_parameters: FreeParameters, single_focal: bool
+    std: np.ndarray, tolerances: np.ndarray, free_parameters: FreeParameters, *, single_focal: bool
 ) -> float:
     """Largest ``std / tolerance`` among the parameters ``free_parameters`` estimates
     (0 if none)."""
-    estimated = free_parameters.estimated(single_focal)
+    estimated = free_parameters.estimated(single_focal=single_focal)
     ratios = np.asarray(std) / tolerances
     values = [r for r, name in zip(ratios, PARAMETER_NAMES, strict=True) if estimated[name]]
     return float(max(values, default=0.0))
@@ -233,7 +233,7 @@ def select_free_parameters(
         if best is not None and candidate.dimension < best[0]:
             break
         std = effective_std(information, candidate, base, start, held, held_std)
-        worst = worst_estimated_std(std, tolerances, candidate, single_focal)
+        worst = worst_estimated_std(std, tolerances, candidate, single_focal=single_focal)
         if worst >= FALLBACK_FACTOR or not square_pixels_not_better(std, candidate, base):
             continue
         if best is None or worst < best[1]:

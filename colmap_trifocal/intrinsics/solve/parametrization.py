@@ -100,7 +100,7 @@ class FreeParameters:
             notes.append(f"{', '.join(held_pp)} held at the prior")
         return notes
 
-    def estimated(self, single_focal: bool) -> dict[str, bool]:
+    def estimated(self, *, single_focal: bool) -> dict[str, bool]:
         """Per parameter: determined by the data when these are estimated.
 
         A tied fy counts as estimated only for single-focal camera models, where

@@ -213,6 +213,7 @@ def search_focal(
     rng: np.random.Generator,
     threshold_px: float = 4.0,
     workers: int | None = None,
+    *,
     progress: bool = False,
     image_size: tuple[int, int] | None = None,
 ) -> FocalSearchResult:

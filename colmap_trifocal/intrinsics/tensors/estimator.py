@@ -119,7 +119,9 @@ class TensorEstimator:
                     by_triplet[position] = tensor.renormalised(K_old, K_new)
                     both[position] = previous.both_starts[position]
             todo = [p for p in todo if by_triplet[p] is None]
-        for position, tensor in zip(todo, self._estimate(start, todo, False), strict=True):
+        for position, tensor in zip(
+            todo, self._estimate(start, todo, second_start=False), strict=True
+        ):
             by_triplet[position] = tensor
         found = sum(t is not None for t in by_triplet)
         logger.info("camera %d: %d of %d triplets gave a tensor", self.camera_id, found, count)
@@ -135,7 +137,7 @@ class TensorEstimator:
         positions = list(range(min(count, len(self.tracks.triplets))))
         return TensorSet(
             np.asarray(start, float).copy(),
-            self._estimate(start, positions, False),
+            self._estimate(start, positions, second_start=False),
             np.zeros(len(positions), dtype=bool),
         )
 
@@ -156,7 +158,7 @@ class TensorEstimator:
         both = tensors.both_starts.copy()
         changed = False
         for position, tensor in zip(
-            positions, self._estimate(tensors.start, positions, True), strict=True
+            positions, self._estimate(tensors.start, positions, second_start=True), strict=True
         ):
             both[position] = True
             if tensor is not None and not _same(tensor, by_triplet[position]):
@@ -173,7 +175,7 @@ class TensorEstimator:
         return np.asarray(norms < self.options.tau)
 
     def _estimate(
-        self, start: np.ndarray, positions: list[int], second_start: bool
+        self, start: np.ndarray, positions: list[int], *, second_start: bool
     ) -> list[TripletTensor | None]:
         """The tensors of the triplets at ``positions`` from ``start`` (cached). A second
         start completes the first start's fit at the same K where there is one (its
@@ -183,12 +185,12 @@ class TensorEstimator:
         K0 = intrinsics_matrix(start)
         jobs: list[Callable[[], TripletFit | None]] = []
         for p in missing:
-            self.starts_used += self._starts(key, p, second_start)
+            self.starts_used += self._starts(key, p, second_start=second_start)
             first = self._cache.get((key, p, False)) if second_start else None
             if first is not None:
                 jobs.append(first.with_second_start)
             else:
-                jobs.append(partial(self._fit, p, K0, second_start))
+                jobs.append(partial(self._fit, p, K0, second_start=second_start))
         fits = map_jobs(
             _call,
             jobs,
@@ -203,9 +205,9 @@ class TensorEstimator:
     def _second_start_cost(self, start: np.ndarray, positions: list[int]) -> int:
         """Refinement starts that second starts at ``positions`` from ``start`` take."""
         key = self._key(start)
-        return sum(self._starts(key, p, True) for p in positions)
+        return sum(self._starts(key, p, second_start=True) for p in positions)
 
-    def _starts(self, key: tuple[Any, ...], position: int, second_start: bool) -> int:
+    def _starts(self, key: tuple[Any, ...], position: int, *, second_start: bool) -> int:
         """Refinement starts one fit takes at the start of ``key``: a first start 1; a
         second start 1 where it completes the first start's fit (0 where that deferred
         nothing), 2 where it fits from scratch."""
@@ -214,7 +216,7 @@ class TensorEstimator:
         first = self._cache.get((key, position, False))
         return 2 if first is None else int(first.deferred is not None)
 
-    def _fit(self, position: int, K0: np.ndarray, second_start: bool) -> TripletFit | None:
+    def _fit(self, position: int, K0: np.ndarray, *, second_start: bool) -> TripletFit | None:
         """One triplet's fit from K0; its own seed makes it independent of scheduling."""
         return fit_triplet(
             self.tracks.triplets[position].image_ids,
@@ -222,7 +224,7 @@ class TensorEstimator:
             K0,
             np.random.default_rng(self.seeds[position]),
             self.options.tensor,
-            second_start,
+            second_start=second_start,
         )
 
     @staticmethod
