@@ -40,6 +40,7 @@ import resource
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -173,19 +174,19 @@ def calibrate_case(name: str, out: Path, seed: int) -> tuple[object, np.ndarray,
     if name in STRECHA or name.removesuffix("-default") in STRECHA:
         default = name.endswith("-default")
         path, truth = strecha_database(out, name.removesuffix("-default"), default)
-        options.no_prior = not default
+        options = replace(options, no_prior=not default)
         return calibrate_database(path, options)[0], truth, path
     if name == "kitti":
         path, truth = kitti_database(out)
-        options.no_prior = True
+        options = replace(options, no_prior=True)
         return calibrate_database(path, options)[0], truth, path
     if name == "rendered30":
         path, truth = rendered_database(out)
-        options.no_prior = True
+        options = replace(options, no_prior=True)
         return calibrate_database(path, options)[0], truth, path
     if name == "drone":
         path, truth = drone_database(out, seed)
-        options.no_prior = True
+        options = replace(options, no_prior=True)
         return calibrate_database(path, options)[0], truth, path
     if name.startswith("synthetic"):
         path, truth = synthetic_database(out, int(name.removeprefix("synthetic")))
@@ -197,9 +198,9 @@ def calibrate_case(name: str, out: Path, seed: int) -> tuple[object, np.ndarray,
     }
     scene = scenes[name]()
     if name == "telephoto":
-        options.no_prior = True
+        options = replace(options, no_prior=True)
     else:
-        options.prior = prior_5(scene.intrinsics, seed)  # type: ignore[assignment]
+        options = replace(options, prior=prior_5(scene.intrinsics, seed))
     return calibrate_contents(scene_contents(scene), options)[0], scene.intrinsics, None
 
 

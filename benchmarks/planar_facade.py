@@ -64,12 +64,12 @@ def main() -> None:
             )
             truth = scene.intrinsics
             for start in args.starts.split(","):
+                run = {"seed": seed, "workers": args.workers, "tensor": tensor}
                 if start == "prior":
                     signs = np.random.default_rng(seed + 99).choice([-1.0, 1.0], 4)
-                    options = CalibrationOptions(prior=tuple(truth * (1.0 + 0.05 * signs)))
+                    options = CalibrationOptions(prior=tuple(truth * (1.0 + 0.05 * signs)), **run)
                 else:
-                    options = CalibrationOptions(no_prior=True)
-                options.seed, options.workers, options.tensor = seed, args.workers, tensor
+                    options = CalibrationOptions(no_prior=True, **run)
                 clock = time.process_time()
                 (result,) = calibrate_contents(scene_contents(scene), options)
                 seconds = time.process_time() - clock

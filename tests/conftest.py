@@ -426,6 +426,22 @@ def run_main(capfd: pytest.CaptureFixture) -> Callable[..., CliResult]:
     return run
 
 
+def database_rows(data: Path | bytes) -> dict[str, list[tuple]]:
+    """Every table's rows (sorted) of a database file or its bytes: what a backup holds
+    (SQLite's backup API copies the pages; the header's change counters differ)."""
+    import sqlite3
+
+    raw = bytearray(data if isinstance(data, bytes) else Path(data).read_bytes())
+    raw[18:20] = b"\x01\x01"  # read a WAL-mode file as a plain one, in memory
+    con = sqlite3.connect(":memory:")
+    try:
+        con.deserialize(bytes(raw))
+        tables = [r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")]
+        return {t: sorted(con.execute(f'SELECT * FROM "{t}"').fetchall()) for t in tables}
+    finally:
+        con.close()
+
+
 def assert_one_error_line(result: CliResult, fragment: str, status: int = 2) -> None:
     """Exit ``status``, stderr exactly one line ``error: ...`` containing ``fragment``."""
     assert "Traceback" not in result.stderr, result.stderr

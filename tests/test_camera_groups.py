@@ -7,6 +7,7 @@ import hashlib
 import json
 import sqlite3
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -357,8 +358,7 @@ def test_schema_variants(schema: str, tmp_path: Path) -> None:
     assert _sha256(path) == before  # read without a change (no migration of the user's file)
     assert result.camera_ids == [1, 2, 3, 4, 5, 6]
     np.testing.assert_allclose(result.intrinsics, TRUTH, rtol=1e-5)
-    options.write = True
-    calibrate_database(path, options)
+    calibrate_database(path, replace(options, write=True))
     tables = _tables(path)
     assert ("rigs" in tables) == (schema == "3.12+")  # written in place, schema kept
     for camera in read_database(path).cameras.values():

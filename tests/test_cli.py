@@ -21,7 +21,14 @@ import cv2
 import numpy as np
 import pycolmap
 import pytest
-from conftest import CliResult, assert_one_error_line, require_rendering, run_cli, synthesize
+from conftest import (
+    CliResult,
+    assert_one_error_line,
+    database_rows,
+    require_rendering,
+    run_cli,
+    synthesize,
+)
 
 PARAMS = [1100.0, 1250.0, 530.0, 370.0]
 PRIOR = "1140,1210,545,360"
@@ -81,7 +88,7 @@ def test_write_flag(database: Path, tmp_path: Path, run_main: Callable[..., CliR
     result = run_main("calibrate", copy, "--prior", PRIOR, "--write")
     assert result.returncode == 0, result.stderr
     assert "wrote 1 camera(s)" in result.stdout
-    assert (tmp_path / "db.db.bak").read_bytes() == database.read_bytes()
+    assert database_rows(tmp_path / "db.db.bak") == database_rows(database)
     with pycolmap.Database.open(str(copy)) as db:
         np.testing.assert_allclose(db.read_all_cameras()[0].params, PARAMS, rtol=1e-5)
 
@@ -174,7 +181,7 @@ def test_closed_stderr_still_writes_the_database(database: Path, tmp_path: Path)
     result = run_cli("calibrate", copy, "--prior", PRIOR, "--write", preexec_fn=_close(2))
     assert result.returncode == 0
     assert "wrote 1 camera(s)" in result.stdout
-    assert (tmp_path / "db.db.bak").read_bytes() == database.read_bytes()
+    assert database_rows(tmp_path / "db.db.bak") == database_rows(database)
     with pycolmap.Database.open(str(copy)) as db:
         np.testing.assert_allclose(db.read_all_cameras()[0].params, PARAMS, rtol=1e-5)
 

@@ -12,7 +12,7 @@ from colmap_trifocal import CalibrationError, CalibrationOptions, calibrate_cont
 from colmap_trifocal.geometry.motion import moves_forward
 from colmap_trifocal.geometry.tracks import MatchGraph, select_triplets
 from colmap_trifocal.intrinsics.assess.diagnosis import diagnose
-from colmap_trifocal.intrinsics.options import default_guess
+from colmap_trifocal.intrinsics.inputs.prior import default_guess
 from colmap_trifocal.intrinsics.start.candidates import held_values
 from colmap_trifocal.intrinsics.start.focal_search import FocalSearchResult, search_focal
 from colmap_trifocal.reconstruction.mapping import (

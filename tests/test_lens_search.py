@@ -34,8 +34,8 @@ def _search(scene, seed: int = 0):
     contents.cameras[CAMERA_ID] = CameraInfo(CAMERA_ID, "SIMPLE_RADIAL", width, height, default)
     options = CalibrationOptions(no_prior=True, seed=seed)
     images = sorted(contents.keypoints)
-    data = camera_input(contents, contents.cameras[CAMERA_ID], images, options)
-    tracks = select_camera_triplets(data, images, options)
+    data = camera_input(contents, contents.cameras[CAMERA_ID], images, options.start_options)
+    tracks = select_camera_triplets(data, images, options.track_options, options.work_options)
     return search_lens(
         tracks.tracks[: options.search_triplets],
         data.prior,

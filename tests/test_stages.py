@@ -100,7 +100,12 @@ def test_triplet_information_matches_pycolmaps_covariance() -> None:
     for image_id in (1, 2, 3):
         config.add_image(image_id)
     config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
-    options = bundle_adjustment_options(True, True, function_tolerance=1e-12, threads=1)
+    options = bundle_adjustment_options(
+        refine_focal_length=True,
+        refine_principal_point=True,
+        function_tolerance=1e-12,
+        threads=1,
+    )
     adjuster = pycolmap.create_default_ceres_bundle_adjuster(options, config, reconstruction)
     assert adjuster.solve().is_solution_usable()
     covariance = pycolmap.estimate_ba_covariance(
@@ -133,7 +138,13 @@ def test_radial_triplet_information_matches_pycolmaps_covariance() -> None:
     for image_id in (1, 2, 3):
         config.add_image(image_id)
     config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
-    options = bundle_adjustment_options(True, True, True, function_tolerance=1e-12, threads=1)
+    options = bundle_adjustment_options(
+        refine_focal_length=True,
+        refine_principal_point=True,
+        refine_extra_params=True,
+        function_tolerance=1e-12,
+        threads=1,
+    )
     adjuster = pycolmap.create_default_ceres_bundle_adjuster(options, config, reconstruction)
     assert adjuster.solve().is_solution_usable()
     camera = reconstruction.cameras[1]

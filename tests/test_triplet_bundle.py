@@ -83,8 +83,8 @@ def _facade_run(triplet_bundle: bool, seed: int = 3):
     scene = facade_scene(relief=0.01, seed=seed, noise_px=1.0, num_points=1000)
     truth = scene.intrinsics
     signs = np.random.default_rng(seed + 99).choice([-1.0, 1.0], 4)
-    options = CalibrationOptions(prior=tuple(truth * (1.0 + 0.05 * signs)), seed=seed)
-    options.triplet_bundle = triplet_bundle
+    prior = tuple(truth * (1.0 + 0.05 * signs))
+    options = CalibrationOptions(prior=prior, seed=seed, triplet_bundle=triplet_bundle)
     (result,) = calibrate_contents(scene_contents(scene), options)
     return float(np.abs(result.intrinsics / truth - 1.0).mean() * 100.0), result
 

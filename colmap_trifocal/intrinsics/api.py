@@ -38,14 +38,8 @@ from ..database.from_reconstruction import (
 )
 from ..database.snapshot import DatabaseContents, read_database
 from ..database.writing import write_intrinsics
-from .options import (
-    METHODS,
-    CalibrationOptions,
-    check_options,
-    default_guess,
-    parse_prior,
-    start_source,
-)
+from .inputs.prior import default_guess, parse_prior, start_source
+from .options import METHODS, CalibrationOptions, check_options
 from .pipeline import calibrate_camera
 from .results import CameraCalibration, GroupCalibration, SkippedGroup
 
@@ -154,13 +148,7 @@ def reconstruction_groups(
 
 def _checked_options(options: CalibrationOptions | None) -> CalibrationOptions:
     """The options (defaults for None), checked; CalibrationError for another type."""
-    options = CalibrationOptions() if options is None else options
-    if not isinstance(options, CalibrationOptions):
-        raise CalibrationError(
-            f"options must be a CalibrationOptions, got {type(options).__name__}"
-        )
-    check_options(options)
-    return options
+    return CalibrationOptions() if options is None else check_options(options)
 
 
 def read_contents(path: Path | str) -> tuple[DatabaseContents, float]:
@@ -324,7 +312,7 @@ def calibrate_groups(
             logger.warning("%s skipped: %s", group.describe(), exc)
             skipped.append(SkippedGroup(list(group.camera_ids), len(group.image_ids), str(exc)))
             continue
-        source = start_source(cameras[0], options)
+        source = start_source(cameras[0], options.start_options)
         for method, result in per_method.items():
             results[method].append(
                 replace(

@@ -129,13 +129,15 @@ def calibrate_camera(
     """
     clock = StageClock()
     with clock("read"):
-        data = camera_input(contents, camera, image_ids, options)
+        data = camera_input(contents, camera, image_ids, options.start_options)
     read_clock = copy.deepcopy(clock)
     results: dict[str, CameraCalibration] = {}
     trifocal = [m for m in methods if m != "fundamental"]
     if trifocal:
         with clock("tracks"):
-            tracks = select_camera_triplets(data, image_ids, options)
+            tracks = select_camera_triplets(
+                data, image_ids, options.track_options, options.work_options
+            )
         seeds = np.random.SeedSequence(options.seed).spawn(len(tracks.triplets) + 1)
         with clock("focal_search"):
             search = _search_focal(data, tracks, seeds[-1], options)

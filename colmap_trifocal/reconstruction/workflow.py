@@ -45,6 +45,7 @@ from ..database.snapshot import read_database
 from ..database.sqlite_files import copy_database
 from ..database.writing import write_intrinsics
 from ..intrinsics.api import CalibrationOptions, calibrate_contents, updated_cameras
+from ..intrinsics.options import Method
 from ..intrinsics.results import CameraCalibration, apply_cameras
 from .images import IMAGE_SUFFIXES, ImageListing, list_images
 from .mapping import (
@@ -75,7 +76,7 @@ class RunOptions:
     #: Grouping of camera ids into physical cameras (see ``calibrate --group``).
     group: str = "auto"
     mapper: str = "incremental"
-    method: str = "msac-opt"
+    method: Method = "msac-opt"
     refine: str = "ba"
     seed: int = 0
     #: Start from this COLMAP database (copied into the workspace) instead of images.

@@ -17,6 +17,7 @@ import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
+from ..intrinsics.options import Method
 from ..intrinsics.results import PARAMETER_NAMES
 from ..reconstruction.report import RunReport
 from ..reconstruction.workflow import RunOptions, run_pipeline
@@ -89,7 +90,7 @@ def make_demo_database(
     return truth, prior
 
 
-def run_demo(seed: int = 0, workdir: Path | None = None, method: str = "msac-opt") -> DemoResult:
+def run_demo(seed: int = 0, workdir: Path | None = None, method: Method = "msac-opt") -> DemoResult:
     """Build the demo database and run the whole pipeline on it.
 
     Outputs go to ``workdir`` (``demo.db`` and the workspace ``demo/``), or to a

@@ -15,13 +15,8 @@ from ...common.errors import CalibrationError
 from ...common.log import logger
 from ...database.cameras import CameraInfo, check_supported, undistort_to_pinhole
 from ...database.snapshot import DatabaseContents
-from ..options import (
-    CalibrationOptions,
-    check_camera_values,
-    check_prior,
-    default_guess,
-    start_source,
-)
+from ..options import StartOptions
+from .prior import check_camera_values, check_prior, default_guess, start_source
 
 
 @dataclass
@@ -45,7 +40,7 @@ def camera_input(
     contents: DatabaseContents,
     camera: CameraInfo,
     image_ids: list[int],
-    options: CalibrationOptions,
+    options: StartOptions,
 ) -> CameraInput:
     """The prior (``--prior``, ``--no-prior`` or the stored camera), checked, and the
     images' undistorted keypoints and verified matches.

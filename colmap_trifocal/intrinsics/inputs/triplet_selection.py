@@ -22,7 +22,7 @@ from ...geometry.tracks import (
     select_sequence_triplets,
     select_triplets,
 )
-from ..options import CalibrationOptions
+from ..options import TrackOptions, WorkOptions
 from .camera_input import CameraInput
 
 
@@ -46,7 +46,7 @@ class CameraTracks:
 
 
 def select_camera_triplets(
-    data: CameraInput, image_ids: list[int], options: CalibrationOptions
+    data: CameraInput, image_ids: list[int], options: TrackOptions, work: WorkOptions
 ) -> CameraTracks:
     """Triplets with at least ``options.min_tracks`` tracks, at most ``options.max_triplets``.
 
@@ -58,7 +58,7 @@ def select_camera_triplets(
     sequence = options.sequence
     if sequence is None:
         sequence = is_sequence(graph, image_ids) and moves_forward(
-            data.keypoints, data.matches, data.prior, workers=options.workers
+            data.keypoints, data.matches, data.prior, workers=work.workers
         )
     if sequence:
         logger.info("camera %d: a sequence: triplets over wide gaps and turns", camera.camera_id)
@@ -73,8 +73,8 @@ def select_camera_triplets(
             options.min_tracks,
             options.max_triplets,
             keypoints=data.keypoints,
-            workers=options.workers,
-            seed=options.seed,
+            workers=work.workers,
+            seed=work.seed,
         )
     if not triplets:
         raise CalibrationError(

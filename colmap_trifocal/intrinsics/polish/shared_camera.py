@@ -241,7 +241,9 @@ class SharedCamera:
             local = points @ pose[:, :3].T + pose[:, 3]
             in_front = local[:, 2] > 0
             safe = np.where(in_front[:, None], local, [0.0, 0.0, 1.0])
-            pixels = np.asarray(camera.img_from_cam(np.ascontiguousarray(safe), False))
+            pixels = np.asarray(
+                camera.img_from_cam(np.ascontiguousarray(safe), check_cheirality=False)
+            )
             squared = np.sum((pixels - triplet.pixels[view]) ** 2, axis=1)
             errors[view] = np.where(in_front & np.isfinite(squared), squared, np.inf)
         return errors
@@ -306,7 +308,7 @@ class Agreement:
 
     Attributes:
         agreeing: their positions in ``shared.triplets``.
-        ratios: λ of every triplet at the start of the last round.
+        ratios: λ of every triplet at the start of the final round.
         fallback: the agreeing set is the fallback's (too few triplets agreed).
     """
 

@@ -175,7 +175,7 @@ def data_moves(
     recovered = np.abs(applied) - np.abs(result - theta)
     estimated = np.abs(parametrization.matrix).sum(axis=1) > 0
     moved = recovered >= MOVE_TEST_RECOVERY * np.abs(applied)
-    return np.where(estimated & (np.abs(applied) > 0), moved, True)
+    return np.asarray(moved | ~(estimated & (np.abs(applied) > 0)))
 
 
 def held_value_sensitivity(
