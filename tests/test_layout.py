@@ -177,7 +177,11 @@ def test_public_api_imports_from_the_top_level(tmp_path: Path) -> None:
 
 #: Words that put history (a measurement, an issue, an earlier version) in a docstring
 #: or comment; it belongs in docs/ and in commit messages (STYLE.md).
-HISTORY = re.compile(r"\bMeasured\b|\(measured|\bissue \d|\(issue|before this|last round")
+HISTORY = re.compile(
+    r"\bMeasured\b|\(measured|\bissue \d|\(issue|before this|last round"
+    # a measured result: a signed percentage, a before → after of seconds or percent
+    r"|: [+−]\d+(\.\d+)? ?%|\d(\.\d+)? ?(s|%) ?(→|->) ?\d"
+)
 
 
 def test_docstrings_and_comments_hold_no_history() -> None:
@@ -188,3 +192,66 @@ def test_docstrings_and_comments_hold_no_history() -> None:
         if HISTORY.search(line)
     ]
     assert found == []
+
+
+#: intrinsics/ in the order its stages' data flows: the solve's mathematics first (every
+#: stage uses it), the options and results the stages share, then the stages as the
+#: pipeline runs them; ``pipeline`` runs them, ``api`` is the public entry.
+INTRINSICS_ORDER = (
+    "solve",
+    "options",
+    "results",
+    "inputs",
+    "start",
+    "tensors",
+    "polish",
+    "lens",
+    "assess",
+    "baselines",
+    "pipeline",
+    "api",
+)
+
+
+def _intrinsics_imports(path: Path) -> set[str]:
+    """The parts of intrinsics/ (sub-packages and top modules) the module imports."""
+    parts = path.relative_to(PACKAGE).with_suffix("").parts
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if not isinstance(node, ast.ImportFrom):
+            continue
+        if node.level:
+            base = list(parts[:-1])[: len(parts) - node.level]
+            target = [*base, *(node.module or "").split(".")]
+        else:
+            target = (node.module or "").split(".")[1:]
+        target = [t for t in target if t]
+        if target[:1] != ["intrinsics"]:
+            continue
+        if len(target) > 1:
+            found.add(target[1])
+        else:
+            found.update(alias.name for alias in node.names)
+    return found
+
+
+def test_intrinsics_stages_import_no_later_stage() -> None:
+    """Each part of intrinsics/ imports only itself and earlier parts: no stage climbs
+    back to a later one, and only the pipeline runs the stages (only the API, the
+    pipeline)."""
+    root = PACKAGE / "intrinsics"
+    on_disk = {p.stem for p in root.glob("*.py") if p.stem != "__init__"}
+    on_disk |= {p.name for p in root.iterdir() if (p / "__init__.py").is_file()}
+    assert on_disk == set(INTRINSICS_ORDER)
+    offences = []
+    for path in sorted(root.rglob("*.py")):
+        relative = path.relative_to(root).with_suffix("").parts
+        own = relative[0]
+        if own == "__init__":
+            continue
+        for imported in _intrinsics_imports(path):
+            if imported in INTRINSICS_ORDER and (
+                INTRINSICS_ORDER.index(imported) > INTRINSICS_ORDER.index(own)
+            ):
+                offences.append(f"intrinsics/{'/'.join(relative)} imports {imported}")
+    assert offences == []

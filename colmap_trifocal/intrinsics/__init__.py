@@ -1,4 +1,6 @@
-"""Stage 3, tensors → K: focal search, the 15 trifocal constraints solved per camera
-(Direct / MSAC / MSAC-Opt, FundamentalCalib baseline) per physical camera (a group of camera
-ids), observability and uncertainty.
+"""Stage 3, tensors → K, per physical camera (a group of camera ids): the TrifocalCalib
+calibration as a list of stages (``pipeline``) over the sub-packages in the order data
+flows (``solve`` first, the mathematics every stage uses; then ``inputs``, ``start``,
+``tensors``, ``polish``, ``lens``, ``assess``; ``baselines``), with the options and
+results they share (``options``, ``results``) and the public entry (``api``).
 """

@@ -13,8 +13,8 @@ Hard motion (:func:`incremental_mapping_with_retries`): when mapping finds no
 initial pair or registers fewer than ``MIN_REGISTERED_FRACTION`` of the images,
 it is retried with a smaller ``mapper.init_min_tri_angle`` (16° → 8° → 4°,
 ``INIT_TRI_ANGLES``). Driving sequences see little parallax between the frames
-of a candidate pair: on a straight drive COLMAP's 16° finds no initial pair even
-with the true K, where 4° registers every frame (docs/hard_scenes.md). COLMAP relaxes by
+of a candidate pair, so that COLMAP's default finds no initial pair on a straight
+drive even with the true K where a smaller angle does (docs/hard_scenes.md). COLMAP relaxes by
 itself only when no model at all results (``init_min_num_inliers`` and
 ``init_min_tri_angle`` halved twice each, so 16° → 4°); a model of a few
 images, which a driving sequence often gives, is not retried there.

@@ -2,8 +2,8 @@
 
 Why. A lens whose distortion the stored camera does not hold (COLMAP's default
 ``SIMPLE_RADIAL`` with k = 0, or a ``PINHOLE`` camera on a real lens) bends every
-track the same way: every tensor then agrees on the same wrong focal length (k1 =
-−0.1 on a 63° lens: +19 %), and neither the projective three-view residual nor the
+track the same way: every tensor then agrees on the same wrong focal length
+(docs/lenses.md), and neither the projective three-view residual nor the
 constraints single out k1. A *calibrated* bundle adjustment does: the agreeing
 triplets, each with its own poses and points, share one camera whose distortion
 parameters are free, and their tracks together span the image up to its corners.

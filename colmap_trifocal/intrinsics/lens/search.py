@@ -16,9 +16,9 @@ farthest image corner, half the diagonal for a centred one, so ``r ≤ 1`` in th
 * ``polynomial``: the radial polynomial COLMAP's models hold,
   ``x_d = c + (x_u − c)(1 + κ r_u²)``, so that COLMAP's ``k1 = κ f² / s²``; undone by
   Newton's method, up to the radius where a barrel polynomial folds
-  (``r_u = 1 / √(−3κ)``). A one-parameter division warp leaves several pixels of a
-  strong polynomial lens in the outer image (k1 = −0.28 at 65°), which planar scenes'
-  tensors do not survive.
+  (``r_u = 1 / √(−3κ)``). A one-parameter division warp leaves pixels of a strong
+  polynomial lens in the outer image, which planar scenes' tensors do not survive
+  (docs/lenses.md).
 
 Fitzgibbon's observation is that only the right warp lets straight epipolar geometry
 explain the matches, whatever the focal length: for each parameter of
