@@ -233,7 +233,6 @@ def test_warning_names_weak_and_held_parameters() -> None:
             observable=observable,
             num_triplets=20,
             num_inlier_triplets=18,
-            seconds=1.0,
             prior=(2700.0, 2700.0, 1536.0, 1024.0),
             start=(2700.0, 2700.0, 1536.0, 1024.0),
             assumptions=assumptions,

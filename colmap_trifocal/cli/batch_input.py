@@ -75,7 +75,7 @@ def calibrate_path(
         check_contents(contents)
     by_method, skipped = calibrate_groups(contents, options, (options.method,))
     results = by_method[options.method]
-    add_read_seconds(results, read_seconds)
+    results = add_read_seconds(results, read_seconds)
     return results, skipped
 
 

@@ -85,7 +85,7 @@ def calibrate_database(
     path = Path(path)
     contents, read_seconds = read_contents(path)
     results = calibrate_contents(contents, options)
-    add_read_seconds(results, read_seconds)
+    results = add_read_seconds(results, read_seconds)
     if options.write:
         write_calibrations(path, results)
     return results
@@ -140,9 +140,13 @@ def reconstruction_groups(
     methods = (options.method,)
     by_method, skipped = calibrate_groups(contents, options, methods, grouping=grouping)
     results = by_method[options.method]
-    add_read_seconds(results, read_seconds)
-    for result in results:
-        result.reference = model_intrinsics(result.group_cameras)
+    results = [
+        replace(
+            result,
+            provenance=replace(result.provenance, reference=model_intrinsics(result.group_cameras)),
+        )
+        for result in add_read_seconds(results, read_seconds)
+    ]
     return results, skipped
 
 
@@ -158,12 +162,19 @@ def read_contents(path: Path | str) -> tuple[DatabaseContents, float]:
     return contents, time.perf_counter() - clock
 
 
-def add_read_seconds(results: Sequence[CameraCalibration], seconds: float) -> None:
-    """Count reading the database (shared by every group) in each result's ``read`` stage."""
+def add_read_seconds(
+    results: Sequence[CameraCalibration], seconds: float
+) -> list[CameraCalibration]:
+    """The results with reading the database (shared by every group) counted in each
+    one's ``read`` stage."""
+    timed = []
     for result in results:
-        result.stage_seconds["read"] = round(result.stage_seconds.get("read", 0.0) + seconds, 4)
-        result.stage_seconds["total"] = round(result.stage_seconds.get("total", 0.0) + seconds, 4)
-        result.seconds += seconds
+        stages = dict(result.stage_seconds)
+        stages["read"] = round(stages.get("read", 0.0) + seconds, 4)
+        stages["total"] = round(stages.get("total", 0.0) + seconds, 4)
+        timing = replace(result.timing, seconds=result.seconds + seconds, stage_seconds=stages)
+        timed.append(replace(result, timing=timing))
+    return timed
 
 
 def updated_cameras(
@@ -318,8 +329,9 @@ def calibrate_groups(
                 replace(
                     result,
                     camera_ids=[c.camera_id for c in cameras],
-                    start_source=source,
-                    group_cameras=list(cameras),
+                    provenance=replace(
+                        result.provenance, start_source=source, group_cameras=list(cameras)
+                    ),
                 )
             )
     if not results[methods[0]] and first_error is not None:

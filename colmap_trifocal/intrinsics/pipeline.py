@@ -50,7 +50,7 @@ from .lens.warp import (
 from .options import CalibrationOptions
 from .polish.bundle import PolishInput
 from .polish.stage import Polished, polish
-from .results import CameraCalibration
+from .results import CameraCalibration, Timing
 from .start.candidates import StartCandidate, first_start
 from .start.focal_search import FocalSearchResult, search_focal
 from .tensors.attempts import (
@@ -150,8 +150,9 @@ def calibrate_camera(
     if "fundamental" in methods:
         with read_clock("solve"):
             results["fundamental"] = calibrate_fundamental(data)
-        results["fundamental"].seconds = read_clock.total
-        results["fundamental"].stage_seconds = read_clock.as_dict()
+        results["fundamental"] = replace(
+            results["fundamental"], timing=Timing(read_clock.total, read_clock.as_dict())
+        )
     return {method: results[method] for method in methods}
 
 
@@ -218,9 +219,7 @@ def _calibrate_method(
                 chosen.finding,
             )
         )
-    result.seconds = clock.total
-    result.stage_seconds = clock.as_dict()
-    result.tensor_starts = estimator.starts_used
+    result = replace(result, timing=Timing(clock.total, clock.as_dict(), estimator.starts_used))
     logger.info("camera %d: %s", data.camera.camera_id, clock.summary())
     return result
 

@@ -12,9 +12,10 @@ convention, the centre of the top-left pixel at (0.5, 0.5)).
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -28,9 +29,13 @@ from .solve.parametrization import PARAMETER_NAMES
 __all__ = [
     "PARAMETER_NAMES",
     "START_SOURCES",
+    "JSON_KEYS",
     "CameraCalibration",
+    "Diagnostics",
     "GroupCalibration",
+    "Provenance",
     "SkippedGroup",
+    "Timing",
     "TripletReport",
     "apply_cameras",
 ]
@@ -68,7 +73,114 @@ class TripletReport:
     score: float | None = None
 
 
-@dataclass
+@dataclass(frozen=True)
+class Timing:
+    """What a camera's calibration cost.
+
+    Attributes:
+        seconds: wall seconds in all (= ``stage_seconds["total"]``).
+        stage_seconds: wall seconds of each stage (read, tracks, focal_search, tensors,
+            solve, lens_search, polish, assessment) and their ``total``; shared stages
+            count for every method calibrated together.
+        tensor_starts: triplet refinement starts the tensors stage ran for this camera
+            (its work; bounded by
+            :data:`intrinsics.tensors.estimator.MAX_STARTS_PER_TRIPLET` per triplet).
+    """
+
+    seconds: float = 0.0
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+    tensor_starts: int = 0
+
+
+@dataclass(frozen=True)
+class Diagnostics:
+    """How the estimate came about, stage by stage.
+
+    Attributes:
+        focal_search: the focal search's result: focal length and std (pixels), whether
+            its cost curve was decisive and whether it replaced the prior's focal length.
+        diagnosis: the cause of undetermined parameters the data shows
+            (:mod:`intrinsics.assess.diagnosis`), or None.
+        triplet_bundle: msac-opt's bundle adjustment of the agreeing triplets
+            (:mod:`intrinsics.polish.bundle`): ``used`` (it replaced the constraint
+            estimate), ``agreeing`` triplets (λ < τ²; None when it failed) and the
+            constraint estimate it started from (``constraints``: fx, fy, cx, cy in
+            pixels). None when it did not run.
+        lens_distortion: the lens distortion the triplets' calibrated bundle adjustment
+            found (:mod:`intrinsics.lens.distortion`): ``present``, ``params`` and
+            ``std`` (COLMAP's order of the model's extra parameters), the
+            likelihood-ratio ``statistic`` and its ``threshold``. None when the stored
+            distortion was taken as it is.
+        triplets: every triplet's tensor and how the constraints judged it.
+        tensors: the tensors themselves (not written to JSON).
+    """
+
+    focal_search: dict[str, Any] | None = None
+    diagnosis: str | None = None
+    triplet_bundle: dict[str, Any] | None = None
+    lens_distortion: dict[str, Any] | None = None
+    triplets: list[TripletReport] = field(default_factory=list)
+    tensors: list[TripletTensor] = field(default_factory=list, repr=False)
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """Where the calibration started and what it is for.
+
+    Attributes:
+        stored_camera: the camera as stored in the database (model, size, distortion)
+            whose prior and model the calibration used: the group's first.
+        group_cameras: the group's cameras as stored, for writing (each keeps its own
+            distortion); ``[stored_camera]`` unless given.
+        start_source: where the prior came from (one of :data:`START_SOURCES`); with
+            ``EXIF focal length`` the focal search still checks it.
+        reference: (fx, fy, cx, cy) the calibrated reconstruction itself holds (its
+            bundle-adjusted intrinsics; the mean over the group's camera ids), pixels;
+            None for a database.
+    """
+
+    stored_camera: CameraInfo | None = field(default=None, repr=False)
+    group_cameras: list[CameraInfo] = field(default_factory=list, repr=False)
+    start_source: str = "stored camera"
+    reference: tuple[float, float, float, float] | None = None
+
+
+#: The keys of :meth:`CameraCalibration.to_json`, in their order (DESIGN.md's contract:
+#: scripts rely on them).
+JSON_KEYS = (
+    "camera_id",
+    "model",
+    "method",
+    "fx",
+    "fy",
+    "cx",
+    "cy",
+    "std",
+    "observable",
+    "num_triplets",
+    "num_inlier_triplets",
+    "seconds",
+    "prior",
+    "start",
+    "assumptions",
+    "estimated",
+    "unconstrained_std",
+    "source",
+    "focal_search",
+    "diagnosis",
+    "triplet_bundle",
+    "lens_distortion",
+    "distortion",
+    "triplets",
+    "stage_seconds",
+    "tensor_starts",
+    "reference",
+    "camera_ids",
+    "start_source",
+)
+
+
+@dataclass(frozen=True)
 class CameraCalibration:
     """The estimate for one camera, for every camera id of its group, as written by
     ``calibrate --json``: the camera's final result, after the constraint solve
@@ -95,7 +207,6 @@ class CameraCalibration:
     observable: dict[str, bool]
     num_triplets: int
     num_inlier_triplets: int
-    seconds: float
     prior: tuple[float, float, float, float]
     #: (fx, fy, cx, cy) the tensors were normalised with: the prior after the focal
     #: search (and after the re-estimation when the estimate moved far from it).
@@ -108,55 +219,77 @@ class CameraCalibration:
     #: Per parameter, where its value comes from: ``trifocal`` (the constraints),
     #: ``tied`` (fy = fx), ``focal-search`` or ``prior`` (held at that estimate).
     source: dict[str, str] = field(default_factory=dict)
-    #: The focal search's result: focal length and std (pixels), whether its cost
-    #: curve was decisive and whether it replaced the prior's focal length.
-    focal_search: dict[str, Any] | None = None
-    #: The cause of undetermined parameters the data shows
-    #: (:mod:`intrinsics.assess.diagnosis`), or None.
-    diagnosis: str | None = None
-    #: msac-opt's bundle adjustment of the agreeing triplets (:mod:`intrinsics.polish.bundle`):
-    #: ``used`` (it replaced the constraint estimate), ``agreeing`` triplets (λ < τ²;
-    #: None when it failed) and the constraint estimate it started from
-    #: (``constraints``: fx, fy, cx, cy in pixels). None when it did not run.
-    triplet_bundle: dict[str, Any] | None = None
-    #: The lens distortion the triplets' calibrated bundle adjustment found
-    #: (:mod:`intrinsics.lens.distortion`): ``present``, ``params`` and ``std`` (COLMAP's order
-    #: of the model's extra parameters), the likelihood-ratio ``statistic`` and its
-    #: ``threshold``. None when the stored distortion was taken as it is.
-    lens_distortion: dict[str, Any] | None = None
     #: The distortion parameters to store with the estimate (COLMAP's order), None to
     #: keep the stored ones.
     distortion: list[float] | None = None
-    triplets: list[TripletReport] = field(default_factory=list)
-    #: Wall seconds of each stage (read, tracks, focal_search, tensors, solve, polish,
-    #: assessment) and their ``total`` (= ``seconds``); shared stages count for every
-    #: method calibrated together.
-    stage_seconds: dict[str, float] = field(default_factory=dict)
-    #: Triplet refinement starts the tensors stage ran for this camera (its work;
-    #: bounded by :data:`intrinsics.tensors.estimator.MAX_STARTS_PER_TRIPLET` per triplet).
-    tensor_starts: int = 0
-    tensors: list[TripletTensor] = field(default_factory=list, repr=False)
-    #: The camera as stored in the database (model, size, distortion) whose prior and
-    #: model the calibration used: the group's first.
-    stored_camera: CameraInfo | None = field(default=None, repr=False)
-    #: (fx, fy, cx, cy) the calibrated reconstruction itself holds (its bundle-adjusted
-    #: intrinsics; the mean over the group's camera ids), pixels; None for a database.
-    reference: tuple[float, float, float, float] | None = None
     #: Every camera id the estimate is for (sorted; ``camera_id`` is the first);
     #: ``[camera_id]`` unless given.
     camera_ids: list[int] = field(default_factory=list)
-    #: Where the prior came from (one of :data:`START_SOURCES`); with ``EXIF focal
-    #: length`` the focal search still checks it.
-    start_source: str = "stored camera"
-    #: The group's cameras as stored, for writing (each keeps its own distortion);
-    #: ``[stored_camera]`` unless given.
-    group_cameras: list[CameraInfo] = field(default_factory=list, repr=False)
+    timing: Timing = field(default_factory=Timing)
+    diagnostics: Diagnostics = field(default_factory=Diagnostics)
+    provenance: Provenance = field(default_factory=Provenance)
 
     def __post_init__(self) -> None:
         if not self.camera_ids:
-            self.camera_ids = [self.camera_id]
-        if not self.group_cameras and self.stored_camera is not None:
-            self.group_cameras = [self.stored_camera]
+            object.__setattr__(self, "camera_ids", [self.camera_id])
+        provenance = self.provenance
+        if not provenance.group_cameras and provenance.stored_camera is not None:
+            object.__setattr__(
+                self, "provenance", replace(provenance, group_cameras=[provenance.stored_camera])
+            )
+
+    # The parts' values by their flat names, as the JSON and scripts know them.
+    @property
+    def seconds(self) -> float:
+        return self.timing.seconds
+
+    @property
+    def stage_seconds(self) -> dict[str, float]:
+        return self.timing.stage_seconds
+
+    @property
+    def tensor_starts(self) -> int:
+        return self.timing.tensor_starts
+
+    @property
+    def focal_search(self) -> dict[str, Any] | None:
+        return self.diagnostics.focal_search
+
+    @property
+    def diagnosis(self) -> str | None:
+        return self.diagnostics.diagnosis
+
+    @property
+    def triplet_bundle(self) -> dict[str, Any] | None:
+        return self.diagnostics.triplet_bundle
+
+    @property
+    def lens_distortion(self) -> dict[str, Any] | None:
+        return self.diagnostics.lens_distortion
+
+    @property
+    def triplets(self) -> list[TripletReport]:
+        return self.diagnostics.triplets
+
+    @property
+    def tensors(self) -> list[TripletTensor]:
+        return self.diagnostics.tensors
+
+    @property
+    def stored_camera(self) -> CameraInfo | None:
+        return self.provenance.stored_camera
+
+    @property
+    def group_cameras(self) -> list[CameraInfo]:
+        return self.provenance.group_cameras
+
+    @property
+    def start_source(self) -> str:
+        return self.provenance.start_source
+
+    @property
+    def reference(self) -> tuple[float, float, float, float] | None:
+        return self.provenance.reference
 
     @property
     def intrinsics(self) -> np.ndarray:
@@ -184,10 +317,10 @@ class CameraCalibration:
         return camera
 
     def to_json(self) -> dict[str, Any]:
-        """The JSON object of DESIGN.md (plus prior, start, assumptions, triplets)."""
-        data = asdict(self)
-        for unwritten in ("tensors", "stored_camera", "group_cameras"):
-            data.pop(unwritten)
+        """The JSON object of DESIGN.md (plus prior, start, assumptions, triplets): the
+        keys of :data:`JSON_KEYS`, the parts' values flat."""
+        data = {key: copy.deepcopy(getattr(self, key)) for key in JSON_KEYS}
+        data["triplets"] = [asdict(report) for report in self.triplets]
         data["prior"] = dict(zip(PARAMETER_NAMES, self.prior, strict=True))
         data["start"] = dict(zip(PARAMETER_NAMES, self.start, strict=True))
         if self.reference is not None:

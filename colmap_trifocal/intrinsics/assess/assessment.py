@@ -18,7 +18,14 @@ from ...geometry.tensor_estimation import TripletTensor
 from ..inputs.camera_input import CameraInput
 from ..lens.distortion import LensDistortion
 from ..polish.stage import Polished
-from ..results import PARAMETER_NAMES, CameraCalibration, TripletReport, finite_or_none
+from ..results import (
+    PARAMETER_NAMES,
+    CameraCalibration,
+    Diagnostics,
+    Provenance,
+    TripletReport,
+    finite_or_none,
+)
 from ..solve.constraints import ConstraintSolution
 from ..solve.fallback import FallbackSolution
 from ..solve.parametrization import FreeParameters
@@ -81,7 +88,8 @@ class _Reported:
 
 
 def assess(given: AssessInput) -> CameraCalibration:
-    """The camera's result (``seconds`` 0: the caller sets them)."""
+    """The camera's result (its ``timing`` empty: the pipeline, which times this stage
+    too, gives it)."""
     camera, fallback = given.data.camera, given.fallback
     reported = _reported(given)
     return CameraCalibration(
@@ -96,7 +104,6 @@ def assess(given: AssessInput) -> CameraCalibration:
         observable=reported.observable,
         num_triplets=len(given.tensors),
         num_inlier_triplets=given.polished.agreeing,
-        seconds=0.0,
         prior=tuple(map(float, given.data.prior)),  # type: ignore[arg-type]
         start=tuple(map(float, given.start)),  # type: ignore[arg-type]
         assumptions=[
@@ -107,21 +114,23 @@ def assess(given: AssessInput) -> CameraCalibration:
         ],
         estimated=reported.estimated,
         source=reported.source,
-        focal_search=search_summary(given.search),
-        diagnosis=_joined(
-            given.finding,
-            reported.lens_note,
-            None
-            if all(reported.observable.values())
-            else diagnose(given.tracks, reported.estimate, given.workers),
-        ),
-        triplet_bundle=given.polished.summary,
-        lens_distortion=None if reported.lens is None else reported.lens.summary(),
         distortion=reported.distortion,
         unconstrained_std=reported.unconstrained,
-        triplets=triplet_reports(given.tensors, fallback.solution, given.start),
-        tensors=given.tensors,
-        stored_camera=camera,
+        diagnostics=Diagnostics(
+            focal_search=search_summary(given.search),
+            diagnosis=_joined(
+                given.finding,
+                reported.lens_note,
+                None
+                if all(reported.observable.values())
+                else diagnose(given.tracks, reported.estimate, given.workers),
+            ),
+            triplet_bundle=given.polished.summary,
+            lens_distortion=None if reported.lens is None else reported.lens.summary(),
+            triplets=triplet_reports(given.tensors, fallback.solution, given.start),
+            tensors=given.tensors,
+        ),
+        provenance=Provenance(stored_camera=camera),
     )
 
 

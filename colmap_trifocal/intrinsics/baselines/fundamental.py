@@ -78,7 +78,7 @@ from colmap_trifocal.common.errors import CalibrationError
 from colmap_trifocal.common.log import logger
 
 from ..inputs.camera_input import CameraInput
-from ..results import PARAMETER_NAMES, CameraCalibration
+from ..results import PARAMETER_NAMES, CameraCalibration, Provenance, Timing
 from .essential_cost import (
     CostForm,
     EssentialProblem,
@@ -333,8 +333,8 @@ def calibrate_fundamental(data: CameraInput) -> CameraCalibration:
         observable={name: bool(result.success) for name in PARAMETER_NAMES},
         num_triplets=0,
         num_inlier_triplets=0,
-        seconds=time.perf_counter() - clock,
+        timing=Timing(seconds=time.perf_counter() - clock),
         prior=tuple(map(float, prior)),  # type: ignore[arg-type]
         start=tuple(map(float, prior)),  # type: ignore[arg-type]
-        stored_camera=camera,
+        provenance=Provenance(stored_camera=camera),
     )
