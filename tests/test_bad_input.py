@@ -717,14 +717,14 @@ CASES: dict[str, Case] = {
         _all_degenerate, "of 15 verified image pairs 15 are DEGENERATE or WATERMARK"
     ),
     "outlier matches, no consistent triplet": Case(
-        _random_inconsistent_matches, "no image triplet with at least 40 three-view tracks"
+        _random_inconsistent_matches, "no image triplet with at least 30 three-view tracks"
     ),
     "outlier matches, no consistent tensor": Case(
         _random_consistent_matches, "no triplet gave a consistent trifocal tensor"
     ),
     # from test_cli.py: a good scene of 30 points, too few three-view tracks
-    "30 points, no triplet": Case(
-        _synthetic(points=30), "no image triplet with at least 40 three-view tracks"
+    "20 points, no triplet": Case(
+        _synthetic(points=20), "no image triplet with at least 30 three-view tracks"
     ),
     "single image": Case(_synthetic(1), "database has only 1 image, at least 3"),
     "two images": Case(_synthetic(2), "database has only 2 images, at least 3"),

@@ -118,8 +118,8 @@ def test_write_stores_estimate_with_backup(tmp_path: Path) -> None:
 
 def test_no_triplet_with_enough_tracks(tmp_path: Path) -> None:
     path = tmp_path / "database.db"
-    synthesize(path, "PINHOLE", MODELS["PINHOLE"], points=30)
-    with pytest.raises(CalibrationError, match="no image triplet with at least 40"):
+    synthesize(path, "PINHOLE", MODELS["PINHOLE"], points=20)
+    with pytest.raises(CalibrationError, match="no image triplet with at least 30"):
         calibrate_database(path)
 
 

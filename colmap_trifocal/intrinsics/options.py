@@ -34,6 +34,12 @@ METHODS: tuple[Method, ...] = get_args(Method)
 #: the unconstrained estimate is already close (docs/accuracy.md).
 RESTART_THRESHOLD = 0.05
 
+#: Three-view tracks a triplet needs (``TrackOptions.min_tracks`` None)...
+DEFAULT_MIN_TRACKS = 40
+#: ... and on a sparse capture, where fewer triplets than wanted have that many: as many
+#: as a tensor needs inliers (``TensorEstimationOptions.min_inliers``).
+SPARSE_MIN_TRACKS = 30
+
 #: Seeds of the calibration go to numpy's SeedSequence (64-bit words are plenty; the
 #: command line keeps to ``common.arguments.MAX_SEED`` because mapping passes it to COLMAP).
 MAX_SEED = 2**64 - 1
@@ -110,14 +116,16 @@ class TrackOptions:
         max_triplets: triplets per camera, spread over the view graph
             (:mod:`colmap_trifocal.geometry.tracks`); None: every triplet with enough
             tracks. More cost time without making the estimate better.
-        min_tracks: three-view tracks a triplet needs.
+        min_tracks: three-view tracks a triplet needs; None: ``DEFAULT_MIN_TRACKS``, or
+            where fewer than ``max_triplets`` triplets have that many (a sparse capture)
+            ``SPARSE_MIN_TRACKS``, so that more of the images are used.
         sequence: choose triplets for a sequence (video, driving): over wider frame
             gaps and across turns; None: where the view graph is one and the camera
             moves forward.
     """
 
     max_triplets: int | None = 20
-    min_tracks: int = 40
+    min_tracks: int | None = None
     sequence: bool | None = None
 
     def __post_init__(self) -> None:
@@ -125,7 +133,9 @@ class TrackOptions:
             not _is_integer(self.max_triplets) or self.max_triplets < 1
         ):
             raise CalibrationError("--max-triplets must be at least 1")
-        if not _is_integer(self.min_tracks) or self.min_tracks < 7:
+        if self.min_tracks is not None and (
+            not _is_integer(self.min_tracks) or self.min_tracks < 7
+        ):
             raise CalibrationError(
                 f"min_tracks must be an integer of at least 7, got {self.min_tracks!r}"
             )
@@ -217,7 +227,7 @@ class CalibrationOptions:
     group: str = "auto"
     seed: int = 0
     max_triplets: int | None = 20
-    min_tracks: int = 40
+    min_tracks: int | None = None
     sequence: bool | None = None
     tau: float = MSAC_TAU
     tensor: TensorEstimationOptions = field(default_factory=TensorEstimationOptions)

@@ -22,7 +22,7 @@ from ...geometry.tracks import (
     select_sequence_triplets,
     select_triplets,
 )
-from ..options import TrackOptions, WorkOptions
+from ..options import DEFAULT_MIN_TRACKS, SPARSE_MIN_TRACKS, TrackOptions, WorkOptions
 from .camera_input import CameraInput
 
 
@@ -45,10 +45,52 @@ class CameraTracks:
         return {triplet.image_ids: x for triplet, x in zip(self.triplets, self.tracks, strict=True)}
 
 
+def _spread_triplets(
+    graph: MatchGraph,
+    data: CameraInput,
+    image_ids: list[int],
+    options: TrackOptions,
+    work: WorkOptions,
+) -> tuple[int, list[Triplet]]:
+    """The tracks a triplet needed and the triplets spread over the view graph: with
+    ``DEFAULT_MIN_TRACKS``, or on a sparse capture (fewer than ``max_triplets`` have
+    that many; ``min_tracks`` not given) with ``SPARSE_MIN_TRACKS``, which brings in
+    more of the images."""
+
+    def select(needed: int) -> list[Triplet]:
+        return select_triplets(
+            graph,
+            image_ids,
+            needed,
+            options.max_triplets,
+            keypoints=data.keypoints,
+            workers=work.workers,
+            seed=work.seed,
+        )
+
+    if options.min_tracks is not None:
+        return options.min_tracks, select(options.min_tracks)
+    triplets = select(DEFAULT_MIN_TRACKS)
+    if options.max_triplets is None or len(triplets) >= options.max_triplets:
+        return DEFAULT_MIN_TRACKS, triplets
+    more = select(SPARSE_MIN_TRACKS)
+    if not more:
+        return SPARSE_MIN_TRACKS, more
+    if len(more) <= len(triplets):
+        return DEFAULT_MIN_TRACKS, triplets
+    logger.info(
+        "camera %d: a sparse capture: %d triplets with at least %d tracks",
+        data.camera.camera_id,
+        len(more),
+        SPARSE_MIN_TRACKS,
+    )
+    return SPARSE_MIN_TRACKS, more
+
+
 def select_camera_triplets(
     data: CameraInput, image_ids: list[int], options: TrackOptions, work: WorkOptions
 ) -> CameraTracks:
-    """Triplets with at least ``options.min_tracks`` tracks, at most ``options.max_triplets``.
+    """Triplets with enough tracks (``options.min_tracks``), at most ``options.max_triplets``.
 
     Raises:
         CalibrationError: no triplet has enough tracks.
@@ -63,23 +105,15 @@ def select_camera_triplets(
     if sequence:
         logger.info("camera %d: a sequence: triplets over wide gaps and turns", camera.camera_id)
         motions = pair_motions(data.matches, data.keypoints)
+        needed = options.min_tracks or DEFAULT_MIN_TRACKS
         triplets = select_sequence_triplets(
-            graph, image_ids, motions, options.min_tracks, options.max_triplets or 100
+            graph, image_ids, motions, needed, options.max_triplets or 100
         )
     else:
-        triplets = select_triplets(
-            graph,
-            image_ids,
-            options.min_tracks,
-            options.max_triplets,
-            keypoints=data.keypoints,
-            workers=work.workers,
-            seed=work.seed,
-        )
+        needed, triplets = _spread_triplets(graph, data, image_ids, options, work)
     if not triplets:
         raise CalibrationError(
-            f"camera {camera.camera_id}: no image triplet with at least {options.min_tracks} "
-            "three-view tracks"
+            f"camera {camera.camera_id}: no image triplet with at least {needed} three-view tracks"
         )
     tracks = [
         np.stack(

@@ -99,8 +99,15 @@ def other_starts(
     holds ``first``'s held values: an other start is only where the tensors are
     estimated from, and what the tensors leave undetermined stays at the best
     evidence (never at a focal length whose cost the search did not single out).
+
+    None where the search's curve is decisive and the first start was its focal length:
+    the evidence favours no other, and tensors that disagree there disagree for another
+    reason (a lens the model does not hold, a facade's planes).
     """
     if search is None or not options.restart or method == "direct":
+        return []
+    first_focal = float(np.sqrt(first.start[0] * first.start[1]))
+    if search.decisive and abs(search.focal / first_focal - 1.0) <= RESTART_THRESHOLD:
         return []
     tried = [float(np.sqrt(start[0] * start[1]))]
     candidates = []

@@ -25,7 +25,7 @@ from ..inputs.camera_input import CameraInput
 from ..inputs.triplet_selection import CameraTracks
 from ..options import CalibrationOptions
 from ..solve.fallback import FallbackProblem, FallbackSolution, solve_with_fallback
-from ..solve.observability import tolerance
+from ..solve.observability import default_held_std, tolerance
 from ..solve.parametrization import FULL, HELD, SINGLE_FOCAL, FreeParameters
 from ..solve.theta import fold_focal_sign, theta_to_intrinsics
 from ..start.candidates import StartCandidate, moved_far, other_starts, restart_point
@@ -235,20 +235,33 @@ def held_where_nothing_agrees(inputs: AttemptInputs, best: Attempt) -> Attempt:
     with the estimate of a robust method that estimated something: the tracks single
     out no K (strong unmodelled lens distortion, wrong matches, no parallax), and the
     start is the best evidence the run has."""
-    nothing_agrees = (
-        inputs.method != "direct"
-        and best.fallback.free_parameters.dimension > 0
-        and not consensus(best.fallback)
-    )
-    if not nothing_agrees:
+    if inputs.method == "direct" or consensus(best.fallback):
         return best
+    candidate = held_at_the_start(best.candidate, inputs.data.prior)
+    if best.fallback.free_parameters.dimension == 0 and candidate is best.candidate:
+        return best  # already held, at the start's values
     logger.info(
         "camera %d: %d of %d tensors agree with the estimate: every value held",
         inputs.data.camera.camera_id,
         best.agreeing,
         len(best.tensors.tensors),
     )
-    return Attempt(best.candidate, best.tensors, solve(inputs, best.candidate, best.tensors, HELD))
+    return Attempt(candidate, best.tensors, solve(inputs, candidate, best.tensors, HELD))
+
+
+def held_at_the_start(candidate: StartCandidate, prior: np.ndarray) -> StartCandidate:
+    """``candidate`` holding the start's values where it held the focal search's: with no
+    tensors agreeing at that focal length, the search (whose hypotheses assume the tracks
+    are a pinhole camera's) is not evidence against the start; the start is known no
+    better than its disagreement with the search."""
+    if candidate.held_source != "focal-search":
+        return candidate
+    prior = np.asarray(prior, float)
+    held_std = default_held_std()
+    searched = float(np.sqrt(candidate.held[0] * candidate.held[1]))
+    disagreement = abs(searched / float(np.sqrt(prior[0] * prior[1])) - 1.0)
+    held_std[:2] = np.maximum(held_std[:2], disagreement)
+    return StartCandidate(candidate.start, prior.copy(), held_std, "prior")
 
 
 def majority(inliers: np.ndarray) -> bool:
