@@ -466,3 +466,22 @@ def without_root_file_access() -> None:
     for capability in (1, 2):  # CAP_DAC_OVERRIDE, CAP_DAC_READ_SEARCH
         if libc.prctl(24, capability, 0, 0, 0) != 0:  # PR_CAPBSET_DROP
             raise OSError(ctypes.get_errno(), "prctl(PR_CAPBSET_DROP)")
+
+
+# --------------------------------------------------------------------------- database rows
+
+
+def table_rows(path: Path) -> dict[str, list[tuple]]:
+    """Every table's rows (sorted) of the database file at ``path``: what a backup holds
+    (SQLite's backup API copies the pages; the header's change counters differ)."""
+    import sqlite3
+
+    raw = bytearray(path.read_bytes())
+    raw[18:20] = b"\x01\x01"  # read a WAL-mode file as a plain one, in memory
+    con = sqlite3.connect(":memory:")
+    try:
+        con.deserialize(bytes(raw))
+        tables = [r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")]
+        return {t: sorted(con.execute(f'SELECT * FROM "{t}"').fetchall()) for t in tables}
+    finally:
+        con.close()

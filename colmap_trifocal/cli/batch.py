@@ -100,7 +100,7 @@ def _check_batch_arguments(args: argparse.Namespace, paths: list[Path]) -> None:
     ``--json`` that cannot be written or is one of the inputs (or their files)."""
     from ..intrinsics.batch import is_model_folder
 
-    single = model_copy_flags(args)
+    single = model_copy_flags(args) + ["--cameras-txt"] * (args.cameras_txt is not None)
     if single:
         raise CalibrationError(f"{single[0]} takes one database, not several inputs")
     models = [path for path in paths if is_model_folder(path)]

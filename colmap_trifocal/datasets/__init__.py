@@ -19,7 +19,7 @@ from .colmap_model import read_colmap_scene
 from .dtu import read_dtu_scene
 from .kitti import read_kitti_scene
 from .middlebury import read_middlebury_scene
-from .strecha import read_strecha_scene
+from .strecha import default_datasets_root, read_strecha_scene
 from .tum import read_tum_scene
 
 DATASET_KINDS = ("strecha", "colmap", "blendedmvs", "kitti", "tum", "dtu", "middlebury")
@@ -34,7 +34,13 @@ READERS: dict[str, Callable[..., DatasetScene]] = {
     "middlebury": read_middlebury_scene,
 }
 
-__all__ = ["DATASET_KINDS", "DatasetScene", "GroundTruthView", "read_scene"]
+__all__ = [
+    "DATASET_KINDS",
+    "DatasetScene",
+    "GroundTruthView",
+    "default_datasets_root",
+    "read_scene",
+]
 
 
 def read_scene(kind: str, path: Path | str, **options) -> DatasetScene:
