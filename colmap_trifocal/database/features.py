@@ -93,21 +93,33 @@ def build_database(
         names = image_names or sorted(p.name for p in image_dir.iterdir() if p.is_file())
         _extract_in_chunks(database, image_dir, names, mode, reader, extraction)
         _match_in_chunks(database, matcher)
-        return database
+    else:
+        _extract(database, image_dir, image_names or [], mode, reader, extraction)
+        if matcher == "exhaustive":
+            pycolmap.match_exhaustive(database, device=pycolmap.Device.cpu)
+        else:
+            pycolmap.match_sequential(database, device=pycolmap.Device.cpu)
+    return database
+
+
+def _extract(
+    database: Path,
+    image_dir: Path,
+    names: list[str],
+    mode: pycolmap.CameraMode,
+    reader: pycolmap.ImageReaderOptions,
+    extraction: pycolmap.FeatureExtractionOptions,
+) -> None:
+    """One ``pycolmap.extract_features`` call over ``names`` (every image when empty)."""
     pycolmap.extract_features(
         database,
         image_dir,
-        image_names=image_names or [],
+        image_names=names,
         camera_mode=mode,
         reader_options=reader,
         extraction_options=extraction,
         device=pycolmap.Device.cpu,
     )
-    if matcher == "exhaustive":
-        pycolmap.match_exhaustive(database, device=pycolmap.Device.cpu)
-    else:
-        pycolmap.match_sequential(database, device=pycolmap.Device.cpu)
-    return database
 
 
 #: Steps of each progress bar (at least :data:`MIN_CHUNK` images or pairs per step).
@@ -139,15 +151,7 @@ def _extract_in_chunks(
     chunks = [names] if mode == pycolmap.CameraMode.PER_FOLDER else _chunks(names)
     with tqdm(total=len(names), desc="features: images", unit="image") as bar:
         for chunk in chunks:
-            pycolmap.extract_features(
-                database,
-                image_dir,
-                image_names=list(chunk),
-                camera_mode=mode,
-                reader_options=reader,
-                extraction_options=extraction,
-                device=pycolmap.Device.cpu,
-            )
+            _extract(database, image_dir, list(chunk), mode, reader, extraction)
             if shared and reader.existing_camera_id < 0:
                 with pycolmap.Database.open(str(database)) as db:
                     reader.existing_camera_id = min(c.camera_id for c in db.read_all_cameras())
