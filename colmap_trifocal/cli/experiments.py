@@ -70,9 +70,9 @@ def check_outputs(
 ) -> None:
     """``--runs``, and the outputs: writable, and none of them a file of the inputs
     (listed by ``inputs`` only when an output exists already)."""
-    require_extra("matplotlib", stem)  # the plot is one of the outputs
     if args.dask is not None:
         require_extra("distributed", "--dask")
+    require_extra("matplotlib", stem)  # the plot is one of the outputs
     if args.runs < 1:
         raise CalibrationError("--runs must be at least 1")
     check_output_folder(args.output, "--output")
