@@ -1,12 +1,21 @@
 """colmap-trifocal: camera self-calibration for COLMAP with the TrifocalCalib method.
 
-The public API mirrors the ``colmap-trifocal calibrate`` command::
+From a database to a calibrated ``pycolmap.Reconstruction`` (``colmap-trifocal run``
+after the features)::
+
+    from colmap_trifocal import reconstruct
+    reconstruction, results = reconstruct("database.db")   # images="images": colours
+
+The calibration alone mirrors the ``colmap-trifocal calibrate`` command::
 
     from colmap_trifocal import CalibrationOptions, calibrate_database
     results = calibrate_database("database.db", CalibrationOptions(method="msac-opt"))
     print(results[0].fx, results[0].std["fx"])
-    results[0].camera                     # a pycolmap.Camera with the estimate
-    results[0].apply(reconstruction)      # into a pycolmap.Reconstruction's cameras
+    results[0].cameras                    # {camera_id: pycolmap.Camera} with the estimate
+    results[0].apply(reconstruction)      # or a pycolmap.Database, or a database path
+    merge_cameras(reconstruction, results[0].camera_ids)   # one shared camera per group
+    write_cameras_txt(results, "cameras.txt")              # COLMAP's text cameras
+    show(reconstruction, "view.png")      # Open3D (pip install 'colmap-trifocal[viz]')
 
 ``calibrate_reconstruction(reconstruction_or_folder)`` calibrates from a
 reconstruction's tracks instead, beside its own intrinsics (``result.reference``).
@@ -31,6 +40,7 @@ __version__ = "0.1.0"
 from .common.errors import CalibrationError
 
 if TYPE_CHECKING:
+    from .database.shared_cameras import merge_cameras
     from .intrinsics.api import (
         METHODS,
         CalibrationOptions,
@@ -43,6 +53,11 @@ if TYPE_CHECKING:
         calibrate_groups,
         calibrate_reconstruction,
     )
+    from .intrinsics.results import PARAMETER_NAMES
+    from .intrinsics.solve.observability import FALLBACK_FACTOR, MAX_RELATIVE_STD
+    from .reconstruction.cameras_txt import write_cameras_txt
+    from .reconstruction.pipeline import ReconstructOptions, reconstruct
+    from .reconstruction.visualize import show
 
 #: Loaded on first use (PEP 562), so that ``import colmap_trifocal.cli`` is quick and the
 #: command line can turn Ctrl-C during the heavy imports into one ``error:`` line.
@@ -62,20 +77,41 @@ _PIPELINE_EXPORTS = frozenset(
 )
 
 
+#: The other exports, loaded on first use: name -> the module that defines it.
+_MODULE_EXPORTS = {
+    "FALLBACK_FACTOR": ".intrinsics.solve.observability",
+    "MAX_RELATIVE_STD": ".intrinsics.solve.observability",
+    "PARAMETER_NAMES": ".intrinsics.results",
+    "ReconstructOptions": ".reconstruction.pipeline",
+    "merge_cameras": ".database.shared_cameras",
+    "reconstruct": ".reconstruction.pipeline",
+    "show": ".reconstruction.visualize",
+    "write_cameras_txt": ".reconstruction.cameras_txt",
+}
+
+
 def __getattr__(name: str) -> Any:
     if name in _PIPELINE_EXPORTS:
         from .intrinsics import api as calibrate
 
         return getattr(calibrate, name)
+    if name in _MODULE_EXPORTS:
+        from importlib import import_module
+
+        return getattr(import_module(_MODULE_EXPORTS[name], __name__), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 __all__ = [
+    "FALLBACK_FACTOR",
+    "MAX_RELATIVE_STD",
     "METHODS",
+    "PARAMETER_NAMES",
     "CalibrationError",
     "CalibrationOptions",
     "CameraCalibration",
     "GroupCalibration",
+    "ReconstructOptions",
     "SkippedGroup",
     "__version__",
     "calibrate_contents",
@@ -83,4 +119,8 @@ __all__ = [
     "calibrate_database",
     "calibrate_groups",
     "calibrate_reconstruction",
+    "merge_cameras",
+    "reconstruct",
+    "show",
+    "write_cameras_txt",
 ]

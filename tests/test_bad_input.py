@@ -48,6 +48,7 @@ import pytest
 from conftest import (
     CliResult,
     assert_one_error_line,
+    database_rows,
     run_cli,
     synthesize,
     texture_views,
@@ -173,20 +174,6 @@ def good_database(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("good") / "database.db"
     synthesize(path, "PINHOLE", PARAMS)
     return path
-
-
-def database_rows(data: Path | bytes) -> dict[str, list[tuple]]:
-    """Every table's rows (sorted) of a database file or its bytes: what a backup holds
-    (SQLite's backup API copies the pages; the header's change counters differ)."""
-    raw = bytearray(data if isinstance(data, bytes) else data.read_bytes())
-    raw[18:20] = b"\x01\x01"  # read a WAL-mode file as a plain one, in memory
-    con = sqlite3.connect(":memory:")
-    try:
-        con.deserialize(bytes(raw))
-        tables = [r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")]
-        return {t: sorted(con.execute(f'SELECT * FROM "{t}"').fetchall()) for t in tables}
-    finally:
-        con.close()
 
 
 @dataclass

@@ -54,6 +54,7 @@ def per_image_database(path: Path, images: int = 6, points: int = 400) -> pycolm
         camera_model_id=pycolmap.CameraModelId.SIMPLE_RADIAL,
     )
     options.camera_params = SIMPLE_RADIAL
+    pycolmap.set_random_seed(0)  # the same scene whatever ran before in this process
     with pycolmap.Database.open(str(path)) as db:
         return pycolmap.synthesize_dataset(options, db)
 

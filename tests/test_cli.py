@@ -7,6 +7,7 @@ Refused inputs are rows of the table in ``test_bad_input.py``. Here: the install
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import json
 import os
@@ -225,3 +226,80 @@ def test_terminated_extraction_prints_one_line(tmp_path: Path) -> None:
     os.killpg(process.pid, signal.SIGTERM)
     _, stderr = process.communicate(timeout=120)
     assert (process.returncode, stderr.splitlines()) == (143, ["error: terminated"])
+
+
+# ----------------------------------------------------------------- help, defaults, progress
+
+
+def _options_without_help(parser: argparse.ArgumentParser, command: str) -> list[str]:
+    """``command OPTION`` for every argument (every subcommand's too) without help text."""
+    missing = []
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                missing += _options_without_help(sub, f"{command} {name}")
+        elif not action.help or action.help == argparse.SUPPRESS:
+            missing.append(f"{command} {'/'.join(action.option_strings) or action.dest}")
+    return missing
+
+
+def test_every_option_of_every_command_has_help() -> None:
+    from colmap_trifocal.cli import build_parser
+
+    parser = build_parser()
+    assert _options_without_help(parser, "colmap-trifocal") == []
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    assert set(commands.choices) == {"calibrate", "run", "evaluate", "synthetic", "show", "demo"}
+
+
+def test_run_defaults_to_colmaps_camera_model() -> None:
+    from colmap_trifocal.cli import build_parser
+    from colmap_trifocal.reconstruction.workflow import RunOptions
+
+    args = build_parser().parse_args(["run", "images", "workspace"])
+    assert args.camera_model == RunOptions().camera_model == "SIMPLE_RADIAL"
+    assert pycolmap.ImageReaderOptions().camera_model == "SIMPLE_RADIAL"  # COLMAP's default
+
+
+def _by_name(database: Path) -> tuple[dict, dict]:
+    """Cameras and keypoint counts by image name, inlier matches by pair of names."""
+    with pycolmap.Database.open(str(database)) as db:
+        names = {image.image_id: image.name for image in db.read_all_images()}
+        cameras = {c.camera_id: (c.model.name, tuple(c.params)) for c in db.read_all_cameras()}
+        images = {
+            image.name: (cameras[image.camera_id], db.num_keypoints_for_image(image.image_id))
+            for image in db.read_all_images()
+        }
+        pair_ids, geometries = db.read_two_view_geometries()
+    matches = {
+        tuple(sorted(names[i] for i in pycolmap.pair_id_to_image_pair(pair_id))): len(
+            geometry.inlier_matches
+        )
+        for pair_id, geometry in zip(pair_ids, geometries, strict=True)
+    }
+    return images, matches
+
+
+@pytest.mark.parametrize(("mode", "matcher"), [("auto", "exhaustive"), ("single", "sequential")])
+def test_progress_bars_over_extraction_and_matching(
+    mode: str, matcher: str, tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """With ``progress`` the work goes a chunk at a time with a bar on stderr, and the
+    database holds the same cameras, features and matches as one pycolmap call gives."""
+    from conftest import texture_views
+
+    from colmap_trifocal.database.features import build_database
+
+    images = tmp_path / "images"
+    images.mkdir()
+    for k, view in enumerate(texture_views(7)):
+        cv2.imwrite(str(images / f"{k}.png"), view)
+    options = {"camera_model": "SIMPLE_RADIAL", "camera_mode": mode, "matcher": matcher}
+    plain = build_database(images, tmp_path / "plain.db", **options)
+    capfd.readouterr()
+    chunked = build_database(images, tmp_path / "chunked.db", **options, progress=True)
+    err = capfd.readouterr().err
+    assert "features: images: 100%" in err and "7/7" in err
+    assert "matching: image pairs: 100%" in err
+    assert _by_name(chunked) == _by_name(plain)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["chunked.db", "images", "plain.db"]

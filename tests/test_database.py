@@ -61,7 +61,7 @@ def _sampson(fundamental: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndar
     return np.abs(residual) / norm
 
 
-def _table_rows(path: Path) -> dict[str, list[tuple]]:
+def _database_rows(path: Path) -> dict[str, list[tuple]]:
     """All rows of all tables (read without creating companion files)."""
     con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro&immutable=1", uri=True)
     try:
@@ -369,20 +369,20 @@ def _new_cameras(path: Path) -> dict[int, CameraInfo]:
 def test_write_intrinsics(synthetic_db: Path, tmp_path: Path) -> None:
     path = _copy(synthetic_db, tmp_path)
     original_hash = _sha256(path)
-    original_rows = _table_rows(path)
+    original_rows = _database_rows(path)
     new = _new_cameras(path)
 
     backup = write_intrinsics(path, new)
 
     assert backup == tmp_path / "database.db.bak"
-    assert _table_rows(backup) == original_rows  # SQLite's backup: the rows, not the bytes
+    assert _database_rows(backup) == original_rows  # SQLite's backup: the rows, not the bytes
     assert original_hash != _sha256(path)
     np.testing.assert_array_equal(read_database(path).cameras[1].params, WRITTEN_PARAMS)
-    rows = _table_rows(path)
+    rows = _database_rows(path)
     assert rows.keys() == original_rows.keys()
-    for table, table_rows in rows.items():
+    for table, database_rows in rows.items():
         if table != "cameras":
-            assert table_rows == original_rows[table], table
+            assert database_rows == original_rows[table], table
     (camera_row,) = rows["cameras"]
     (original_camera_row,) = original_rows["cameras"]
     params_column = 4  # camera_id, model, width, height, params, prior_focal_length
@@ -394,15 +394,15 @@ def test_write_intrinsics(synthetic_db: Path, tmp_path: Path) -> None:
 
 def test_second_write_keeps_first_backup(synthetic_db: Path, tmp_path: Path) -> None:
     path = _copy(synthetic_db, tmp_path)
-    original_rows = _table_rows(path)
+    original_rows = _database_rows(path)
     first = write_intrinsics(path, _new_cameras(path))
-    after_first = _table_rows(path)
+    after_first = _database_rows(path)
     cameras = read_database(path).cameras
     second = write_intrinsics(path, {1: cameras[1].with_intrinsics(1000, 1000, 512, 384)})
     assert first == tmp_path / "database.db.bak"
     assert second == tmp_path / "database.db.bak1"
-    assert _table_rows(first) == original_rows
-    assert _table_rows(second) == after_first
+    assert _database_rows(first) == original_rows
+    assert _database_rows(second) == after_first
     np.testing.assert_array_equal(read_database(path).cameras[1].params, [1000, 512, 384, 0.05])
 
 
@@ -423,7 +423,7 @@ def test_write_backup_includes_wal(synthetic_db: Path, tmp_path: Path) -> None:
         backup = write_intrinsics(path, _new_cameras(path))
     finally:
         other.close()
-    backup_rows = _table_rows(backup)
+    backup_rows = _database_rows(backup)
     assert "renamed.png" in {row[1] for row in backup_rows["images"]}
     np.testing.assert_array_equal(
         np.frombuffer(backup_rows["cameras"][0][4], "<f8"), SIMPLE_RADIAL_PARAMS

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import importlib
 import importlib.metadata
 import re
 import subprocess
@@ -91,8 +92,9 @@ def _listed_subpackages(text: str) -> list[str]:
 
 
 def test_tree_lists_the_stages_in_flow_order() -> None:
-    """STAGES is the package: its order is the one the imports give and the one the
-    README and CONTRIBUTING show, and ``ls colmap_trifocal`` (alphabetical) lists it."""
+    """STAGES is the package: its order is the one the imports give and the one
+    docs/how_it_works.md and CONTRIBUTING show, and ``ls colmap_trifocal`` (alphabetical)
+    lists it."""
     on_disk = {p.name for p in PACKAGE.iterdir() if (p / "__init__.py").is_file()}
     assert on_disk == {*STAGES, *SUPPORT}, "a sub-package missing from STAGES/SUPPORT or gone"
     # Depth in the import graph (common 0, a stage importing only common 1, ...): the
@@ -107,7 +109,7 @@ def test_tree_lists_the_stages_in_flow_order() -> None:
     assert sorted(STAGES, key=lambda s: (depth[s], s)) == list(STAGES), depth
     assert all(imports[sub] for sub in STAGES[1:]), "a stage that takes nothing from earlier ones"
     assert sorted(STAGES) == list(STAGES)  # `ls` lists them in flow order
-    readme = (PACKAGE.parent / "README.md").read_text()
+    readme = (PACKAGE.parent / "docs" / "how_it_works.md").read_text()
     table = readme[readme.index("The package is laid out by stage") :]
     table = table[: table.index("\n\n", table.index("| stage |"))]
     assert _listed_subpackages(table) == [*STAGES, *SUPPORT]
@@ -136,6 +138,25 @@ PUBLIC_API = {
     "calibrate_database",
     "calibrate_groups",
     "calibrate_reconstruction",
+    "FALLBACK_FACTOR",
+    "MAX_RELATIVE_STD",
+    "PARAMETER_NAMES",
+    "ReconstructOptions",
+    "merge_cameras",
+    "reconstruct",
+    "show",
+    "write_cameras_txt",
+}
+#: Where each public name outside ``intrinsics.api`` is defined.
+DEFINED_IN = {
+    "FALLBACK_FACTOR": "colmap_trifocal.intrinsics.solve.observability",
+    "MAX_RELATIVE_STD": "colmap_trifocal.intrinsics.solve.observability",
+    "PARAMETER_NAMES": "colmap_trifocal.intrinsics.results",
+    "ReconstructOptions": "colmap_trifocal.reconstruction.pipeline",
+    "merge_cameras": "colmap_trifocal.database.shared_cameras",
+    "reconstruct": "colmap_trifocal.reconstruction.pipeline",
+    "show": "colmap_trifocal.reconstruction.visualize",
+    "write_cameras_txt": "colmap_trifocal.reconstruction.cameras_txt",
 }
 
 
@@ -147,7 +168,8 @@ def test_public_api_imports_from_the_top_level(tmp_path: Path) -> None:
 
     assert set(colmap_trifocal.__all__) == PUBLIC_API
     for name in PUBLIC_API - {"__version__", "CalibrationError"}:
-        assert getattr(colmap_trifocal, name) is getattr(calibrate, name), name
+        module = importlib.import_module(DEFINED_IN[name]) if name in DEFINED_IN else calibrate
+        assert getattr(colmap_trifocal, name) is getattr(module, name), name
     assert colmap_trifocal.CalibrationError is errors.CalibrationError
     assert issubclass(colmap_trifocal.CalibrationError, Exception)
     assert colmap_trifocal.__version__ == importlib.metadata.version("colmap-trifocal")

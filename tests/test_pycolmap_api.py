@@ -1,5 +1,7 @@
 """The API in pycolmap's terms: results as ``pycolmap.Camera``, ``apply`` to a reconstruction,
-calibration from a reconstruction's tracks (``calibrate_reconstruction``), README's lines.
+a database or a path, ``merge_cameras``, COLMAP's ``cameras.txt``, calibration from a
+reconstruction's tracks (``calibrate_reconstruction``). The README's lines:
+``test_reconstruct.py``; misuse: ``test_bad_input_workflow.py``.
 
 Accuracy of the reconstruction route against ground truth: a synthetic scene here, the
 Strecha scenes (``real_data``) against calibrating their database directly.
@@ -7,20 +9,21 @@ Strecha scenes (``real_data``) against calibrating their database directly.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pycolmap
 import pytest
-from conftest import PROJECT_ROOT, synthesize
+from conftest import database_rows, synthesize
 
 from colmap_trifocal import (
     CalibrationError,
     CalibrationOptions,
     calibrate_database,
     calibrate_reconstruction,
+    merge_cameras,
+    write_cameras_txt,
 )
 from colmap_trifocal.database.from_reconstruction import (
     MODEL_FOCAL_TOLERANCE,
@@ -274,35 +277,106 @@ def test_grouping_cameras_splits_other_lenses() -> None:
     assert key[4] not in (key[1], key[3])
 
 
-# --------------------------------------------------------------------------- README
+# --------------------------------------------------------------------------- pycolmap targets
 
 
-def _readme_python() -> str:
-    """The code block of README.md's Python section."""
-    readme = (PROJECT_ROOT / "README.md").read_text()
-    section = readme.split("### Python", 1)[1]
-    match = re.search(r"```python\n(.*?)```", section, flags=re.DOTALL)
-    assert match is not None, "README's Python section has no python code block"
-    return match.group(1)
+def test_cameras_are_pycolmap_cameras_of_every_id(tmp_path: Path) -> None:
+    database = tmp_path / "per_image.db"
+    _per_image_database(database, images=6)
+    (result,) = calibrate_database(database)
+    cameras = result.cameras
+    assert sorted(cameras) == result.camera_ids
+    for camera_id, camera in cameras.items():
+        assert isinstance(camera, pycolmap.Camera) and camera.camera_id == camera_id
+        np.testing.assert_array_equal(camera.params, result.camera.params)
 
 
-def test_readme_python_lines(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """README's Python lines, run as they are on the demo database (``database.db`` and an
-    ``images`` folder): the database calibrated and written with a backup, mapped, the
-    model calibrated from its tracks, the estimate applied and bundle-adjusted."""
-    code = _readme_python()
-    monkeypatch.chdir(tmp_path)
-    truth, prior = make_demo_database(tmp_path / "database.db", seed=0)
-    (tmp_path / "images").mkdir()
-    namespace: dict = {}
-    exec(compile(code, "README.md", "exec"), namespace)  # noqa: S102 - the README's own lines
-    assert (tmp_path / "database.db.bak").is_file()
-    reconstruction = namespace["reconstruction"]
-    assert isinstance(reconstruction, pycolmap.Reconstruction)
-    assert reconstruction.num_reg_images() == 10
-    camera = reconstruction.cameras[1]
-    assert mean_relative_error(camera.params, truth) < 0.001
-    assert mean_relative_error(prior, truth) > 0.04
+def test_apply_to_an_open_database_and_to_a_path(tmp_path: Path) -> None:
+    """An open ``pycolmap.Database`` gets the estimate in one transaction; a path through
+    the safe write (a backup with the rows as they were, then the new params)."""
+    database = tmp_path / "per_image.db"
+    _per_image_database(database, images=6)
+    (result,) = calibrate_database(database)
+    opened = tmp_path / "opened.db"
+    opened.write_bytes(database.read_bytes())
+    with pycolmap.Database.open(str(opened)) as db:
+        assert result.apply(db) == result.camera_ids
+        stored = {c.camera_id: np.array(c.params) for c in db.read_all_cameras()}
+    for camera_id, camera in result.cameras.items():
+        np.testing.assert_array_equal(stored[camera_id], camera.params)
+
+    before = database_rows(database)
+    assert result.apply(str(database)) == result.camera_ids
+    assert database_rows(database.with_name("per_image.db.bak")) == before
+    for camera in read_database(database).cameras.values():
+        np.testing.assert_array_equal(camera.params, result.cameras[camera.camera_id].params)
+
+
+def test_merge_cameras_in_a_reconstruction(tmp_path: Path) -> None:
+    """A merged copy: one camera for the group, the same poses, points and observations,
+    an unregistered image kept; the given reconstruction unchanged. ``apply`` then writes
+    the group's first camera only, and bundle adjustment runs on it."""
+    database = tmp_path / "per_image.db"
+    truth = _per_image_database(database)
+    (result,) = calibrate_database(database)
+    model = pycolmap.Reconstruction(truth)
+    unregistered = sorted(model.reg_frame_ids())[-1]
+    model.deregister_frame(unregistered)
+    merged = merge_cameras(model, result.camera_ids)
+    assert len(model.cameras) == 8  # the given one as it was
+    assert sorted(merged.cameras) == [result.camera_id]
+    assert {image.camera_id for image in merged.images.values()} == {result.camera_id}
+    assert (merged.num_images(), merged.num_reg_images()) == (8, 7)
+    assert merged.num_points3D() == model.num_points3D()
+    for image_id in model.reg_image_ids():
+        np.testing.assert_allclose(
+            merged.image(image_id).cam_from_world().matrix(),
+            model.image(image_id).cam_from_world().matrix(),
+        )
+    assert merged.compute_mean_reprojection_error() == pytest.approx(
+        model.compute_mean_reprojection_error()
+    )
+    assert result.apply(merged) == [result.camera_id]
+    np.testing.assert_array_equal(merged.cameras[result.camera_id].params, result.camera.params)
+    pycolmap.bundle_adjustment(merged, pycolmap.BundleAdjustmentOptions())
+    assert merged.compute_mean_reprojection_error() < 1.0  # px, 0.5 px keypoint noise
+
+
+def test_merge_cameras_in_a_database(tmp_path: Path) -> None:
+    """In place after a backup: one camera for the group, every image on it, and the
+    calibration of the merged database the same camera."""
+    database = tmp_path / "per_image.db"
+    _per_image_database(database, images=6)
+    (before_merge,) = calibrate_database(database)
+    rows = database_rows(database)
+    assert merge_cameras(database, before_merge.camera_ids) is None
+    assert database_rows(database.with_name("per_image.db.bak")) == rows
+    contents = read_database(database)
+    assert sorted(contents.cameras) == [before_merge.camera_id]
+    assert set(contents.image_camera.values()) == {before_merge.camera_id}
+    (after,) = calibrate_database(database)
+    assert after.camera_ids == [before_merge.camera_id]
+    np.testing.assert_allclose(after.intrinsics, before_merge.intrinsics, rtol=1e-9)
+
+
+def test_write_cameras_txt_is_read_back_by_pycolmap(tmp_path: Path) -> None:
+    """COLMAP's text cameras: pycolmap reads every camera id back, params bit for bit."""
+    database = tmp_path / "per_image.db"
+    _per_image_database(database, images=6)
+    results = calibrate_database(database)
+    folder = tmp_path / "text"
+    folder.mkdir()
+    assert write_cameras_txt(results, folder / "cameras.txt") == folder / "cameras.txt"
+    (folder / "images.txt").write_text("")
+    (folder / "points3D.txt").write_text("")
+    model = pycolmap.Reconstruction(folder)
+    (result,) = results
+    assert sorted(model.cameras) == result.camera_ids
+    for camera_id, camera in result.cameras.items():
+        assert model.cameras[camera_id].model == camera.model
+        np.testing.assert_array_equal(model.cameras[camera_id].params, camera.params)
+    text = (folder / "cameras.txt").read_text()
+    assert text.startswith("# Camera list") and "# Number of cameras: 6" in text
 
 
 # --------------------------------------------------------------------------- real data

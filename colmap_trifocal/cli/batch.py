@@ -2,7 +2,7 @@
 
 Each input (a database, or a COLMAP model folder) is calibrated on its own with the same
 options (``--write`` stores each database's estimate as a single run does); its lines
-(:func:`..intrinsics.batch.calibrate_input`) are written as it finishes, to ``--json
+(:func:`.batch_input.calibrate_input`) are written as it finishes, to ``--json
 FILE`` or to standard output (``--json -``, the default). An input that fails gives one
 line ``{"database", "error"}`` and one ``error: PATH: message`` line on stderr, and the
 others go on; the exit status is then :data:`EXIT_SOME_FAILED`. Locally the inputs run
@@ -100,7 +100,7 @@ def _check_batch_arguments(args: argparse.Namespace, paths: list[Path]) -> None:
     ``--json`` that cannot be written or is one of the inputs (or their files)."""
     from .batch_input import is_model_folder
 
-    single = model_copy_flags(args)
+    single = model_copy_flags(args) + ["--cameras-txt"] * (args.cameras_txt is not None)
     if single:
         raise CalibrationError(f"{single[0]} takes one database, not several inputs")
     models = [path for path in paths if is_model_folder(path)]

@@ -30,7 +30,7 @@ if TYPE_CHECKING:
     import pycolmap
 
     from ..database.snapshot import DatabaseContents
-    from ..intrinsics.api import CalibrationOptions
+    from ..intrinsics.api import CalibrationOptions, CameraCalibration
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -51,7 +51,13 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "calibrated from its tracks); several, or a quoted glob pattern: one JSON line per "
         "camera group as each input finishes",
     )
-    calibrate.add_argument("--method", choices=METHODS, default="msac-opt")
+    calibrate.add_argument(
+        "--method",
+        choices=METHODS,
+        default="msac-opt",
+        help="TrifocalCalib variant (default msac-opt) or the Mendonça-Cipolla baseline "
+        "(fundamental)",
+    )
     calibrate.add_argument(
         "--prior",
         metavar="FX,FY,CX,CY",
@@ -81,11 +87,25 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "with several inputs as JSON lines (default: stdout)",
     )
     calibrate.add_argument(
+        "--cameras-txt",
+        type=Path,
+        metavar="OUT",
+        help="write the estimate as COLMAP's cameras.txt (-: to stdout, the table then goes "
+        "to stderr): every camera id of each calibrated group",
+    )
+    calibrate.add_argument(
         "--write",
         action="store_true",
         help="store the estimate in the database (a backup <name>.bak is made first)",
     )
-    calibrate.add_argument("--max-triplets", type=int, default=CalibrationOptions.max_triplets)
+    calibrate.add_argument(
+        "--max-triplets",
+        type=int,
+        default=CalibrationOptions.max_triplets,
+        metavar="N",
+        help=f"image triplets per camera (default {CalibrationOptions.max_triplets}; more: "
+        "slower, a little more accurate)",
+    )
     calibrate.add_argument(
         "--no-prior",
         action="store_true",
@@ -130,6 +150,10 @@ def run(args: argparse.Namespace) -> int:
     from .batch import expand_inputs, run_batch
     from .batch_input import check_input_path, is_model_folder
 
+    if args.dask is not None:
+        from ..common.extras import require_extra
+
+        require_extra("distributed", "--dask")
     options = _options(args)
     if args.max_triplets < 1:
         raise CalibrationError("--max-triplets must be at least 1")
@@ -152,10 +176,9 @@ def _run_database(args: argparse.Namespace, database: Path, options: Calibration
     from .batch_input import calibrate_path
 
     model = _check_arguments(args, database)
-    json_to_stdout = args.json is not None and is_stdout(args.json)
     results, skipped = calibrate_path(database, options, _model_check(args, model))
-    # With the JSON on stdout, the table and messages go to stderr: stdout stays JSON.
-    out = sys.stderr if json_to_stdout else sys.stdout
+    # With the JSON or cameras.txt on stdout, the table and messages go to stderr.
+    out = sys.stderr if outputs_to_stdout(args) else sys.stdout
     print_table(results, skipped, out)
     update = None
     if args.model is not None:
@@ -170,12 +193,11 @@ def _run_database(args: argparse.Namespace, database: Path, options: Calibration
             model,
         )
         print(update.describe(), file=out)
-    if args.json is not None:
-        entries = [r.to_json() for r in results] + [g.to_json() for g in skipped]
-        if update is not None:
-            for entry in entries:
-                entry["model"] = update.to_json()
-        write_text_output(args.json, json.dumps(entries, indent=2) + "\n", json_to_stdout)
+    entries = [r.to_json() for r in results] + [g.to_json() for g in skipped]
+    if update is not None:
+        for entry in entries:
+            entry["model"] = update.to_json()
+    write_text_outputs(args, entries, results)
     if args.write:
         written = write_calibrations(database, results)
         if written:
@@ -187,6 +209,41 @@ def _run_database(args: argparse.Namespace, database: Path, options: Calibration
                     file=out,
                 )
     return 0
+
+
+def outputs_to_stdout(args: argparse.Namespace) -> bool:
+    """Whether ``--json`` or ``--cameras-txt`` goes to standard output."""
+    return any(path is not None and is_stdout(path) for path in (args.json, args.cameras_txt))
+
+
+def write_text_outputs(
+    args: argparse.Namespace, entries: list[dict], results: list[CameraCalibration]
+) -> None:
+    """``--json`` (the entries) and ``--cameras-txt`` (COLMAP's cameras.txt of the results),
+    each to its file or to standard output."""
+    from ..reconstruction.cameras_txt import cameras_txt
+
+    if args.json is not None:
+        text = json.dumps(entries, indent=2) + "\n"
+        write_text_output(args.json, text, is_stdout(args.json))
+    if args.cameras_txt is not None:
+        write_text_output(args.cameras_txt, cameras_txt(results), is_stdout(args.cameras_txt))
+
+
+def check_text_outputs(args: argparse.Namespace) -> list[Output]:
+    """Check ``--json`` and ``--cameras-txt`` (writable, at most one on standard output);
+    the file outputs among them, to check against the inputs."""
+    given = [
+        (flag, path)
+        for flag, path in (("--json", args.json), ("--cameras-txt", args.cameras_txt))
+        if path is not None
+    ]
+    on_stdout = [flag for flag, path in given if is_stdout(path)]
+    if len(on_stdout) > 1:
+        raise CalibrationError("--json and --cameras-txt cannot both go to standard output")
+    for flag, path in given:
+        check_output_file(path, flag)
+    return [Output(flag, path) for flag, path in given if not is_stdout(path)]
 
 
 def _options(args: argparse.Namespace) -> CalibrationOptions:
@@ -244,10 +301,7 @@ def _check_arguments(args: argparse.Namespace, database: Path) -> pycolmap.Recon
         model = into_model.read_model(args.model)
         inputs.append(Input.folder(args.model, "--model"))
         outputs.append(Output("--output", args.output, folder=True))
-    if args.json is not None:
-        check_output_file(args.json, "--json")
-        if not is_stdout(args.json):
-            outputs.append(Output("--json", args.json))
+    outputs += check_text_outputs(args)
     refuse_outputs_over_inputs(outputs, inputs)
     if args.write:  # refuse a read-only database now, not after the calibration
         check_writable(database)

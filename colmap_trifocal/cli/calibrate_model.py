@@ -11,14 +11,12 @@ options that write a database or a model copy are refused.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..common.errors import CalibrationError
-from ..common.files import Input, Output, refuse_outputs_over_inputs
-from .output import check_output_file, is_stdout, write_text_output
+from ..common.files import Input, refuse_outputs_over_inputs
 from .tables import print_comparisons, print_table
 
 if TYPE_CHECKING:
@@ -28,22 +26,23 @@ if TYPE_CHECKING:
 def run_model(args: argparse.Namespace, model: Path, options: CalibrationOptions) -> int:
     """Check, calibrate the model folder, print both tables, write the JSON; exit status 0."""
     from ..intrinsics.api import reconstruction_groups
+    from .calibrate import outputs_to_stdout, write_text_outputs
 
     check_model_arguments(args, model)
-    json_to_stdout = args.json is not None and is_stdout(args.json)
     results, skipped = reconstruction_groups(model, options)
-    out = sys.stderr if json_to_stdout else sys.stdout  # stdout stays JSON
+    out = sys.stderr if outputs_to_stdout(args) else sys.stdout  # stdout stays JSON
     print_table(results, skipped, out)
     print_comparisons(results, out)
-    if args.json is not None:
-        entries = [r.to_json() for r in results] + [g.to_json() for g in skipped]
-        write_text_output(args.json, json.dumps(entries, indent=2) + "\n", json_to_stdout)
+    entries = [r.to_json() for r in results] + [g.to_json() for g in skipped]
+    write_text_outputs(args, entries, results)
     return 0
 
 
 def check_model_arguments(args: argparse.Namespace, model: Path) -> None:
-    """Refuse the flags that need a database, and a ``--json`` that cannot be written or
-    is a file of the model."""
+    """Refuse the flags that need a database, and a ``--json`` or ``--cameras-txt`` that
+    cannot be written or is a file of the model."""
+    from .calibrate import check_text_outputs
+
     if args.write:
         raise CalibrationError(
             f"--write stores the estimate in a database: {model} is a COLMAP model folder "
@@ -52,12 +51,7 @@ def check_model_arguments(args: argparse.Namespace, model: Path) -> None:
     given = model_copy_flags(args)
     if given:
         raise CalibrationError(f"{given[0]} goes with a database: {model} is a COLMAP model folder")
-    if args.json is not None:
-        check_output_file(args.json, "--json")
-        if not is_stdout(args.json):
-            refuse_outputs_over_inputs(
-                [Output("--json", args.json)], [Input.folder(model, "MODEL")]
-            )
+    refuse_outputs_over_inputs(check_text_outputs(args), [Input.folder(model, "MODEL")])
 
 
 def model_copy_flags(args: argparse.Namespace) -> list[str]:

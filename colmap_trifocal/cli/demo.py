@@ -16,8 +16,15 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     demo = commands.add_parser(
         "demo", help="calibrate a synthetic database with a known camera (no download)"
     )
-    demo.add_argument("--seed", type=seed, default=0)
-    demo.add_argument("--method", choices=METHODS, default="msac-opt")
+    demo.add_argument(
+        "--seed", type=seed, default=0, help="seed of the synthetic scene and the run (default 0)"
+    )
+    demo.add_argument(
+        "--method",
+        choices=METHODS,
+        default="msac-opt",
+        help="TrifocalCalib variant (default msac-opt) or the Mendonça-Cipolla baseline",
+    )
     demo.add_argument("--keep", type=Path, metavar="DIR", help="keep the demo database in DIR")
 
 

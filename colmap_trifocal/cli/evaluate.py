@@ -37,7 +37,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--mapping-runs", type=int, default=3, help="runs of the mapping baseline (default 3)"
     )
-    parser.add_argument("--max-image-size", type=int, default=1600)
+    parser.add_argument(
+        "--max-image-size",
+        type=int,
+        default=1600,
+        help="longest image side for SIFT, in pixels (default 1600)",
+    )
     add_common_flags(parser, "evaluation")
     parser.add_argument(
         "--cache", type=Path, help="keep the per-scene databases here (default: temporary)"

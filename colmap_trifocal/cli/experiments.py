@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 from ..common.arguments import seed
 from ..common.errors import CalibrationError
+from ..common.extras import require_extra
 from ..common.files import Input, Output, refuse_outputs_over_inputs, write_text_atomically
 from .output import check_output_file, check_output_folder
 
@@ -24,7 +25,9 @@ if TYPE_CHECKING:
 
 def add_common_flags(parser: argparse.ArgumentParser, stem: str) -> None:
     """``--seed``, ``--output``, ``--json``, ``--workers`` and ``--dask``."""
-    parser.add_argument("--seed", type=seed, default=0)
+    parser.add_argument(
+        "--seed", type=seed, default=0, help="seed of the runs' random draws (default 0)"
+    )
     parser.add_argument(
         "--output",
         type=Path,
@@ -67,6 +70,9 @@ def check_outputs(
 ) -> None:
     """``--runs``, and the outputs: writable, and none of them a file of the inputs
     (listed by ``inputs`` only when an output exists already)."""
+    if args.dask is not None:
+        require_extra("distributed", "--dask")
+    require_extra("matplotlib", stem)  # the plot is one of the outputs
     if args.runs < 1:
         raise CalibrationError("--runs must be at least 1")
     check_output_folder(args.output, "--output")

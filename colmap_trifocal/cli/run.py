@@ -42,15 +42,27 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         default=RunOptions.max_image_size,
         help="longest image side for SIFT, in pixels",
     )
-    run.add_argument("--matcher", choices=MATCHERS, default=RunOptions.matcher)
+    run.add_argument(
+        "--matcher",
+        choices=MATCHERS,
+        default=RunOptions.matcher,
+        help="pycolmap feature matching: every pair (exhaustive, default) or neighbours in "
+        "name order (sequential: video)",
+    )
     run.add_argument(
         "--camera-model",
         default=RunOptions.camera_model,
         choices=SUPPORTED_MODELS,
-        help="COLMAP model of the new cameras (default PINHOLE; one camera per image, as "
-        "COLMAP's default, grouped into physical cameras by --group)",
+        help="COLMAP model of the new cameras (default SIMPLE_RADIAL, COLMAP's; one camera "
+        "per image, as COLMAP's default, grouped into physical cameras by --group)",
     )
-    run.add_argument("--group", choices=GROUPINGS, default=RunOptions.group)
+    run.add_argument(
+        "--group",
+        choices=GROUPINGS,
+        default=RunOptions.group,
+        help="camera ids sharing intrinsics: auto (same model, size and stored parameters; "
+        "default), camera (each camera id alone), all (every image one camera)",
+    )
     run.add_argument(
         "--mapper",
         choices=MAPPERS,
@@ -58,9 +70,22 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="pycolmap incremental mapping or the global mapper (GLOMAP), both started "
         "from the TrifocalCalib estimate",
     )
-    run.add_argument("--method", choices=METHODS, default=RunOptions.method)
-    run.add_argument("--refine", choices=REFINE_CHOICES, default=RunOptions.refine)
-    run.add_argument("--seed", type=seed, default=0)
+    run.add_argument(
+        "--method",
+        choices=METHODS,
+        default=RunOptions.method,
+        help="TrifocalCalib variant (default msac-opt) or the Mendonça-Cipolla baseline",
+    )
+    run.add_argument(
+        "--refine",
+        choices=REFINE_CHOICES,
+        default=RunOptions.refine,
+        help="after mapping: bundle adjustment of focal lengths and principal points (ba, "
+        "default) or none (the estimate kept where the images determined it)",
+    )
+    run.add_argument(
+        "--seed", type=seed, default=0, help="random seed of calibration and mapping (default 0)"
+    )
     run.add_argument("--database", type=Path, help="start from this database (it is copied)")
     run.add_argument(
         "--model",
@@ -82,6 +107,10 @@ def run(args: argparse.Namespace) -> int:
     from ..reconstruction.workflow import RunOptions, run_inputs, run_pipeline, workspace_outputs
     from ..reconstruction.workspace import refuse_workspace_over_images
 
+    if args.png is not None:
+        from ..common.extras import require_extra
+
+        require_extra("open3d", "run --png")
     progress = sys.stderr.isatty()
     options = RunOptions(
         max_image_size=args.max_image_size,

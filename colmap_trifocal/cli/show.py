@@ -20,8 +20,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Check the PNG path, then render (Open3D's own lines only with ``-vv``); exit 0."""
+    from ..common.extras import require_extra
     from ..reconstruction.visualize import show  # open3d is imported only for this command
 
+    require_extra("open3d", "show")
     if args.png is None:
         show(args.model, None)  # an interactive window
         return 0

@@ -19,13 +19,17 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--noise", default=",".join(f"{n:g}" for n in NOISE_LEVELS), help="pixel noise levels"
     )
-    parser.add_argument("--runs", type=int, default=100)
+    parser.add_argument("--runs", type=int, default=100, help="runs per noise level (default 100)")
     parser.add_argument("--points", type=int, default=500, help="tracks per scene")
     parser.add_argument(
         "--perturbation", type=finite_float, default=5.0, help="prior ±%% (default 5)"
     )
     parser.add_argument("--outliers", type=float, default=0.0, help="outlier track fraction")
-    parser.add_argument("--methods", default=",".join(SYNTHETIC_METHODS))
+    parser.add_argument(
+        "--methods",
+        default=",".join(SYNTHETIC_METHODS),
+        help=f"comma-separated, from {','.join((*SYNTHETIC_METHODS, 'msac'))}",
+    )
     add_common_flags(parser, "synthetic")
 
 

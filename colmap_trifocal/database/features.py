@@ -1,10 +1,23 @@
-"""Feature extraction and matching into a COLMAP database (pycolmap SIFT)."""
+"""Feature extraction and matching into a COLMAP database (pycolmap SIFT).
+
+With ``progress`` the work is cut into steps, each a pycolmap call, and a bar on stderr
+moves after each one: the images are extracted a chunk at a time, and the image pairs
+COLMAP's own pair generator gives (exhaustive or sequential) are matched a chunk at a
+time from a pairs file (``pycolmap.match_image_pairs``). pycolmap gives no callback inside
+one call, and reading the database while it writes would take SQLite locks of its own in
+this process. Extraction of each image and matching of each pair do not depend on the
+others, so the database holds the same cameras, features and matches either way.
+"""
 
 from __future__ import annotations
 
+import math
+import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 import pycolmap
+from tqdm import tqdm
 
 from ..common.errors import CalibrationError
 
@@ -43,6 +56,8 @@ def build_database(
     camera_mode: str | None = None,
     num_threads: int = -1,
     seed: int | None = None,
+    *,
+    progress: bool = False,
 ) -> Path:
     """Extract SIFT features (CPU) and match them, writing a new COLMAP database.
 
@@ -62,6 +77,8 @@ def build_database(
             thread and a ``seed`` the database is the same on every build; with more,
             pycolmap's threads give images their ids in the order they finish.
         seed: the random seed of the geometric verification's RANSAC (None: random).
+        progress: bars of images extracted and pairs matched on stderr (the work done
+            a chunk at a time, see the module docstring).
     """
     image_dir, database = Path(image_dir), Path(database)
     check_max_image_size(max_image_size)
@@ -84,20 +101,109 @@ def build_database(
     if camera_mode is None:
         camera_mode = "single" if single_camera else "per-image"
     mode = CAMERA_MODES[camera_mode]
+    if progress:
+        names = image_names or sorted(p.name for p in image_dir.iterdir() if p.is_file())
+        _extract_in_chunks(database, image_dir, names, mode, reader, extraction)
+        _match_in_chunks(database, matcher, matching, verification)
+    else:
+        _extract(database, image_dir, image_names or [], mode, reader, extraction)
+        match = pycolmap.match_exhaustive if matcher == "exhaustive" else pycolmap.match_sequential
+        match(
+            database,
+            matching_options=matching,
+            verification_options=verification,
+            device=pycolmap.Device.cpu,
+        )
+    return database
+
+
+def _extract(
+    database: Path,
+    image_dir: Path,
+    names: list[str],
+    mode: pycolmap.CameraMode,
+    reader: pycolmap.ImageReaderOptions,
+    extraction: pycolmap.FeatureExtractionOptions,
+) -> None:
+    """One ``pycolmap.extract_features`` call over ``names`` (every image when empty)."""
     pycolmap.extract_features(
         database,
         image_dir,
-        image_names=image_names or [],
+        image_names=names,
         camera_mode=mode,
         reader_options=reader,
         extraction_options=extraction,
         device=pycolmap.Device.cpu,
     )
-    match = pycolmap.match_exhaustive if matcher == "exhaustive" else pycolmap.match_sequential
-    match(
-        database,
-        matching_options=matching,
-        verification_options=verification,
-        device=pycolmap.Device.cpu,
-    )
-    return database
+
+
+#: Steps of each progress bar (at least :data:`MIN_CHUNK` images or pairs per step).
+PROGRESS_STEPS = 20
+MIN_CHUNK = 2
+
+
+def _chunks(items: Sequence, steps: int = PROGRESS_STEPS) -> list[Sequence]:
+    """``items`` cut into about ``steps`` consecutive chunks (at least MIN_CHUNK each)."""
+    size = max(MIN_CHUNK, math.ceil(len(items) / steps))
+    return [items[k : k + size] for k in range(0, len(items), size)]
+
+
+def _extract_in_chunks(
+    database: Path,
+    image_dir: Path,
+    names: list[str],
+    mode: pycolmap.CameraMode,
+    reader: pycolmap.ImageReaderOptions,
+    extraction: pycolmap.FeatureExtractionOptions,
+) -> None:
+    """``pycolmap.extract_features`` a chunk of images at a time, with a bar of images.
+
+    One camera for all images (``single``) stays one camera: later chunks take the first
+    chunk's camera (``existing_camera_id``). ``per-folder`` is one call (a chunk would
+    start a new camera in the middle of a folder).
+    """
+    shared = mode == pycolmap.CameraMode.SINGLE
+    chunks = [names] if mode == pycolmap.CameraMode.PER_FOLDER else _chunks(names)
+    with tqdm(total=len(names), desc="features: images", unit="image") as bar:
+        for chunk in chunks:
+            _extract(database, image_dir, list(chunk), mode, reader, extraction)
+            if shared and reader.existing_camera_id < 0:
+                with pycolmap.Database.open(str(database)) as db:
+                    reader.existing_camera_id = min(c.camera_id for c in db.read_all_cameras())
+            bar.update(len(chunk))
+
+
+def _match_in_chunks(
+    database: Path,
+    matcher: str,
+    matching: pycolmap.FeatureMatchingOptions,
+    verification: pycolmap.TwoViewGeometryOptions,
+) -> None:
+    """Match the pairs COLMAP's ``matcher`` pair generator gives, a chunk at a time from a
+    pairs file next to the database (removed after), with a bar of image pairs."""
+    with pycolmap.Database.open(str(database)) as db:
+        if matcher == "exhaustive":
+            generator = pycolmap.ExhaustivePairGenerator(pycolmap.ExhaustivePairingOptions(), db)
+            pairs = generator.all_pairs()
+        else:
+            sequential = pycolmap.SequentialPairGenerator(pycolmap.SequentialPairingOptions(), db)
+            pairs = sequential.all_pairs()
+        names = {image.image_id: image.name for image in db.read_all_images()}
+        lines = [f"{names[a]} {names[b]}\n" for a, b in pairs]
+    with (
+        tempfile.TemporaryDirectory(dir=database.parent, prefix=".pairs-") as tmp,
+        tqdm(total=len(lines), desc="matching: image pairs", unit="pair") as bar,
+    ):
+        pairs_file = Path(tmp) / "pairs.txt"
+        for chunk in _chunks(lines):
+            pairs_file.write_text("".join(chunk))
+            options = pycolmap.ImportedPairingOptions()
+            options.match_list_path = pairs_file
+            pycolmap.match_image_pairs(
+                database,
+                matching_options=matching,
+                pairing_options=options,
+                verification_options=verification,
+                device=pycolmap.Device.cpu,
+            )
+            bar.update(len(chunk))

@@ -290,6 +290,26 @@ def _remove_temporaries(database: Path) -> list[Path]:
     return [temporary for temporary in _temporaries(database) if _unlink(temporary)]
 
 
+def back_up_locked(path: Path) -> _Backup:
+    """Back up the database at ``path`` to ``<name>.bak`` (``.bak1``, ... if taken) while
+    the caller holds its write lock (``BEGIN IMMEDIATE`` on the caller's own connection).
+
+    The returned backup's ``remove()`` takes it away again (call it before ROLLBACK).
+
+    Raises:
+        CalibrationError: the copy could not be made (nothing is left behind).
+    """
+    for stale in _remove_temporaries(path):
+        logger.info("removed %s: the copy of a backup that did not finish", stale)
+    backup = _Backup(path)
+    try:
+        _make_backup(path, backup)
+    except BaseException:
+        backup.remove()
+        raise
+    return backup
+
+
 def _make_backup(path: Path, backup: _Backup) -> None:
     """Copy the database at ``path`` to its backup: claim, copy and flush, publish.
 

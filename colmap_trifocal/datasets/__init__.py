@@ -21,7 +21,7 @@ from .euroc import read_euroc_scene
 from .kitti import read_kitti_scene
 from .middlebury import read_middlebury_scene
 from .nerf import read_nerf_scene
-from .strecha import read_strecha_scene
+from .strecha import default_datasets_root, read_strecha_scene
 from .tum import read_tum_scene
 
 DATASET_KINDS = (
@@ -48,7 +48,13 @@ READERS: dict[str, Callable[..., DatasetScene]] = {
     "nerf": read_nerf_scene,
 }
 
-__all__ = ["DATASET_KINDS", "DatasetScene", "GroundTruthView", "read_scene"]
+__all__ = [
+    "DATASET_KINDS",
+    "DatasetScene",
+    "GroundTruthView",
+    "default_datasets_root",
+    "read_scene",
+]
 
 
 def read_scene(kind: str, path: Path | str, **options) -> DatasetScene:

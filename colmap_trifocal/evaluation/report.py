@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..common.extras import missing_extra
 from .records import RunRecord
 
 #: Order of methods in tables and plots (others follow alphabetically).
@@ -143,7 +144,10 @@ def boxplots(records: list[RunRecord], path: Path, title: str = "") -> None:
     Drawn on a :class:`matplotlib.figure.Figure` without pyplot, so the caller's
     backend (a notebook's inline plots, say) is left alone.
     """
-    from matplotlib.figure import Figure
+    try:
+        from matplotlib.figure import Figure
+    except ModuleNotFoundError as exc:
+        raise missing_extra("matplotlib", "the plots") from exc
 
     groups: dict[tuple, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
     for r in records:

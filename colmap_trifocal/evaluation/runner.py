@@ -16,6 +16,7 @@ import pycolmap
 from tqdm import tqdm
 
 from ..common.errors import CalibrationError
+from ..common.extras import missing_extra
 from ..common.parallel import default_workers
 
 #: How long a Dask client waits for the scheduler before the run is refused.
@@ -125,7 +126,10 @@ class _WithLogLevel:
 def _on_dask(
     function: Callable[[Any], Any], tasks: Sequence[Any], address: str, level: int
 ) -> Iterator[tuple[int, Any]]:
-    from distributed import Client, as_completed
+    try:
+        from distributed import Client, as_completed
+    except ModuleNotFoundError as exc:
+        raise missing_extra("distributed", "--dask") from exc
 
     try:
         client = Client(address, timeout=DASK_CONNECT_TIMEOUT)

@@ -16,12 +16,19 @@ import copy
 import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
+from ..database.camera_targets import (
+    check_same_camera,
+    group_ids_held,
+    write_to_database_file,
+    write_to_open_database,
+)
 from ..database.cameras import CameraInfo
 from ..geometry.tensor_estimation import TripletTensor
 from .solve.parametrization import PARAMETER_NAMES
@@ -351,22 +358,44 @@ class CameraCalibration:
         cameras = self.updated_cameras()
         return cameras.get(self.camera_id, next(iter(cameras.values()))).to_pycolmap()
 
-    def apply(self, reconstruction: pycolmap.Reconstruction) -> list[int]:
-        """Write the estimate into the reconstruction's cameras of this result, in memory.
+    @property
+    def cameras(self) -> dict[int, pycolmap.Camera]:
+        """camera_id -> a new ``pycolmap.Camera`` with the estimate, for every camera id of
+        the group (each with its stored model, size and distortion, as :attr:`camera`)."""
+        return {c: camera.to_pycolmap() for c, camera in self.updated_cameras().items()}
 
-        Every camera id of the result (of the group) gets the estimate; each keeps its
-        own distortion params unless they are 0 and the tracks showed distortion
-        (:meth:`written_camera`). Poses and points are not touched: bundle-adjust or
-        re-triangulate afterwards.
+    def apply(self, target: pycolmap.Reconstruction | pycolmap.Database | Path | str) -> list[int]:
+        """Write the estimate into the group's cameras of ``target``.
+
+        ``target`` is a ``pycolmap.Reconstruction`` (changed in memory; poses and points
+        are not touched: bundle-adjust or re-triangulate afterwards), an open
+        ``pycolmap.Database`` (one transaction), or the path of a database file (a backup
+        ``<name>.bak`` first, one transaction, read back, as ``calibrate --write``). It
+        must hold every camera id of the group, or only the first (the group merged into
+        one camera: :func:`colmap_trifocal.merge_cameras`, ``reconstruct``). Each camera
+        keeps its own distortion unless it is 0 and the tracks showed some
+        (:meth:`written_camera`).
 
         Returns:
             The camera ids written (sorted).
 
         Raises:
-            CalibrationError: the reconstruction lacks one of the camera ids, or holds it
-                with another model or image size (nothing is written then).
+            CalibrationError: another kind of target (None, a ``pycolmap.Camera``, a
+                folder, ...), a closed database, a camera id missing, or one of another
+                model or image size (nothing is written then).
         """
-        return apply_cameras(reconstruction, self.updated_cameras())
+        cameras, group = self.updated_cameras(), list(self.camera_ids)
+        if isinstance(target, pycolmap.Reconstruction):
+            ids = group_ids_held(group, set(target.cameras), "the reconstruction")
+            return apply_cameras(target, {c: cameras[c] for c in ids})
+        if isinstance(target, pycolmap.Database):
+            return write_to_open_database(target, cameras, group)
+        if isinstance(target, (str, Path)):
+            return write_to_database_file(Path(target), cameras, group)
+        raise CalibrationError(
+            "apply takes a pycolmap.Reconstruction, a pycolmap.Database or a database "
+            f"path, not {type(target).__name__}"
+        )
 
     def compare_with_model(self) -> str:
         """A table of the estimate (± std) beside the reconstruction's own intrinsics.
@@ -503,17 +532,9 @@ def apply_cameras(
             "(is it from this database?)"
         )
     for camera_id in present:
-        target, camera = reconstruction.camera(camera_id), cameras[camera_id]
-        if (target.model.name, target.width, target.height) != (
-            camera.model,
-            camera.width,
-            camera.height,
-        ):
-            raise CalibrationError(
-                f"camera {camera_id} of the reconstruction is a {target.model.name} "
-                f"{target.width}x{target.height}, the calibrated one a {camera.model} "
-                f"{camera.width}x{camera.height}: is it from this database?"
-            )
+        check_same_camera(
+            camera_id, reconstruction.camera(camera_id), cameras[camera_id], "the reconstruction"
+        )
     for camera_id in present:
         reconstruction.camera(camera_id).params = cameras[camera_id].params.tolist()
     return present

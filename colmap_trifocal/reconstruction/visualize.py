@@ -44,6 +44,7 @@ import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
+from ..common.extras import missing_extra
 from ..database.cameras import CameraInfo
 from ..database.from_reconstruction import grouping_cameras, read_reconstruction
 
@@ -84,9 +85,14 @@ _PROBE = (
 
 
 def _open3d():
-    """The open3d module, or CalibrationError naming the Debian packages it needs."""
+    """The open3d module, or CalibrationError naming the extra (not installed) or the
+    Debian packages it needs (installed, but it cannot load)."""
     try:
         import open3d
+    except ModuleNotFoundError as exc:
+        if exc.name != "open3d":
+            raise CalibrationError(f"cannot import open3d ({exc})") from exc
+        raise missing_extra("open3d", "drawing a model (show, run --png)") from exc
     except (ImportError, OSError) as exc:
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise CalibrationError(
@@ -589,25 +595,43 @@ def model_caption(
     return lines + cameras
 
 
-def show(model: Path, png: Path | None = None) -> Path | None:
-    """Show the model in ``model`` (a COLMAP sparse folder): to ``png`` or in a window.
+def show(
+    model: pycolmap.Reconstruction | Path | str,
+    png: Path | str | None = None,
+    *,
+    width: int = 1280,
+    height: int = 960,
+) -> Path | None:
+    """Show a COLMAP model: rendered to ``png``, or in a window.
 
-    With ``png`` the view is rendered offscreen with its caption (:func:`model_caption`,
-    with the ``report.json`` of the ``run`` workspace that holds the model, if any) and
-    its path returned. Without it an interactive open3d window opens when a display
-    exists (``DISPLAY`` or ``WAYLAND_DISPLAY`` set) and None is returned after it is
-    closed.
+    Args:
+        model: a ``pycolmap.Reconstruction`` in memory, or a COLMAP sparse folder
+            (``sparse/0``, binary or text).
+        png: render offscreen (with its caption, :func:`model_caption`: for a folder of a
+            ``run`` workspace TrifocalCalib's estimate from its ``report.json``, else the
+            model's own K) to this PNG and return its path. None: an interactive Open3D
+            window where a display exists (``DISPLAY`` or ``WAYLAND_DISPLAY`` set),
+            returning None once it is closed.
+        width, height: size of the PNG in pixels.
 
     Raises:
-        CalibrationError: bad model folder, no display (and no ``png``), or offscreen
-            rendering impossible.
+        CalibrationError: bad model folder, Open3D not installed (the extra ``viz``) or
+            unable to render here, no display (and no ``png``).
     """
-    reconstruction = load_model(Path(model))
+    if isinstance(model, pycolmap.Reconstruction):
+        reconstruction, report, title = model, None, "reconstruction"
+    elif not isinstance(model, (str, Path)):
+        raise CalibrationError(
+            f"show takes a pycolmap.Reconstruction or a model folder, not {type(model).__name__}"
+        )
+    else:
+        reconstruction = load_model(Path(model))
+        report, title = run_report(Path(model)), str(model)
     geometries = scene_geometry(reconstruction)
     if png is not None:
-        caption = model_caption(reconstruction, run_report(Path(model)))
-        return render_png(geometries, Path(png), caption=caption)
+        caption = model_caption(reconstruction, report)
+        return render_png(geometries, Path(png), width=width, height=height, caption=caption)
     if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         raise CalibrationError("no display: use --png OUT")
-    _open3d().visualization.draw_geometries(geometries, window_name=f"colmap-trifocal: {model}")
+    _open3d().visualization.draw_geometries(geometries, window_name=f"colmap-trifocal: {title}")
     return None

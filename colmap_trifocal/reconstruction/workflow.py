@@ -1,6 +1,7 @@
 """``colmap-trifocal run``: images (or a database) in, calibrated reconstruction out.
 
-Stages, each timed in ``report.json``:
+Stages, each timed in ``report.json`` (2-4 are :mod:`.pipeline`'s, which
+:func:`.pipeline.reconstruct` runs on a database the caller has):
 
 1. features: pycolmap SIFT extraction and matching into ``WORKSPACE/database.db``,
    cameras created as COLMAP's default does (one per image; skipped when an
@@ -38,25 +39,20 @@ import pycolmap
 from ..common.errors import CalibrationError
 from ..common.files import Input, Output, refuse_outputs_over_inputs, write_text_atomically
 from ..common.log import logger
-from ..database.cameras import PINHOLE_MODELS
 from ..database.features import build_database, check_max_image_size
-from ..database.shared_cameras import merge_group_cameras
-from ..database.snapshot import read_database
+from ..database.snapshot import DatabaseContents, read_database
 from ..database.sqlite_files import copy_database
-from ..database.writing import write_intrinsics
-from ..intrinsics.api import CalibrationOptions, calibrate_contents, updated_cameras
+from ..intrinsics.api import CalibrationOptions, updated_cameras
 from ..intrinsics.options import Method
-from ..intrinsics.results import CameraCalibration, apply_cameras
+from ..intrinsics.results import apply_cameras
 from .images import IMAGE_SUFFIXES, ImageListing, list_images
-from .mapping import (
-    MAPPERS,
-    REFINE_CHOICES,
-    InitialPair,
-    MappingAttempt,
-    describe_attempts,
-    global_mapping,
-    incremental_mapping_with_retries,
-    refine_intrinsics,
+from .mapping import MAPPERS, REFINE_CHOICES
+from .pipeline import (
+    ReconstructOptions,
+    announce,
+    calibrate_for_mapping,
+    map_calibrated,
+    refine_calibrated,
 )
 from .report import RunReport, build_report
 from .visualize import load_model
@@ -69,7 +65,8 @@ class RunOptions:
 
     max_image_size: int = 1600
     matcher: str = "exhaustive"
-    camera_model: str = "PINHOLE"
+    #: COLMAP's default model (``colmap feature_extractor``).
+    camera_model: str = "SIMPLE_RADIAL"
     #: pycolmap camera mode of the extraction (``auto``: COLMAP's default, one camera
     #: per image, grouped by the calibration).
     camera_mode: str = "auto"
@@ -88,6 +85,19 @@ class RunOptions:
 
     def __post_init__(self) -> None:
         check_max_image_size(self.max_image_size)
+
+    def reconstruct_options(self) -> ReconstructOptions:
+        """The calibration, mapping and refinement settings, as :func:`.pipeline.reconstruct`
+        takes them (the stages after the features are the same)."""
+        calibration = CalibrationOptions(
+            method=self.method, seed=self.seed, progress=self.progress, group=self.group
+        )
+        return ReconstructOptions(
+            calibration=calibration,
+            mapper=self.mapper,
+            refine=self.refine,
+            progress=self.progress,
+        )
 
 
 def run_inputs(images: Path | None, options: RunOptions) -> list[Input]:
@@ -164,97 +174,37 @@ def _run_stages(
     on_stage: Callable[[str], None] | None,
 ) -> RunReport:
     """The stages of :func:`run_pipeline` in the prepared, locked workspace; the report."""
-    names = None if listing is None else listing.names
     database = workspace / "database.db"
     seconds: dict[str, float] = {}
 
     began = time.perf_counter()
-    if options.database is not None:
-        contents = read_database(options.database)  # validated (one-line errors), then copied
-        copy_database(options.database, database)  # with what is still in its -wal
-    else:
-        assert images is not None and names is not None
-        _stage(f"features and matching for {len(names)} images (pycolmap SIFT)", on_stage)
-        build_database(
-            images,
-            database,
-            names,
-            max_image_size=options.max_image_size,
-            camera_model=options.camera_model,
-            matcher=options.matcher,
-            camera_mode=options.camera_mode,
-        )
-        contents = read_database(database)
+    contents = _features(images, listing, database, options, on_stage)
     seconds["features"] = time.perf_counter() - began
 
     began = time.perf_counter()
-    calibrations = calibrate_contents(
-        contents,
-        CalibrationOptions(
-            method=options.method,
-            seed=options.seed,
-            progress=options.progress,
-            group=options.group,
-        ),
+    stages = options.reconstruct_options()
+    # One camera per group while mapping (the workspace copy only); a given model keeps
+    # its camera ids.
+    calibrations = calibrate_for_mapping(
+        contents, database, stages.calibration, merge=options.model is None
     )
-    updated = updated_cameras(calibrations, determined_only=False)
-    write_intrinsics(database, updated, backup=False)  # our own copy in the workspace
-    if options.model is None:  # one camera per group while mapping (the copy only)
-        merge_group_cameras(database, [list(c.camera_ids) for c in calibrations])
     seconds["calibrate"] = time.perf_counter() - began
 
     began = time.perf_counter()
     mapping: dict[str, Any] = {}
-    refine = refined_while_mapping(calibrations)
     if given_model is not None:
         reconstruction = given_model
+        updated = updated_cameras(calibrations, determined_only=False)
         apply_cameras(reconstruction, updated, require_all=False)
     else:
         with tempfile.TemporaryDirectory(dir=workspace) as tmp:
-            _stage(f"mapping (pycolmap {options.mapper})", on_stage)
-            if options.mapper == "global":
-                reconstruction = global_mapping(
-                    database,
-                    images,
-                    Path(tmp),
-                    refine["focal_length"] or refine["principal_point"],
-                    seed=options.seed,
-                    refine_distortion=refine["distortion"],
-                )
-                attempts: list[MappingAttempt] = []
-                seeded: InitialPair | None = None
-            else:
-                reconstruction, attempts, seeded = incremental_mapping_with_retries(
-                    database,
-                    images,
-                    Path(tmp),
-                    refine["focal_length"],
-                    refine["principal_point"],
-                    seed=options.seed,
-                    progress=options.progress,
-                    candidate_pairs=seed_candidate_pairs(calibrations),
-                    known_focal_cameras=focal_estimated_cameras(calibrations),
-                    refine_distortion=refine["distortion"],
-                )
-        mapping = {
-            "mapper": options.mapper,
-            "refined_while_mapping": refine,
-            "attempts": [asdict(a) for a in attempts],
-            "seeded_pair": None if seeded is None else asdict(seeded),
-        }
-        retried = describe_attempts(attempts, seeded)
-        if retried:
-            logger.info(retried)
-            mapping["note"] = retried
+            mapped = map_calibrated(database, images, Path(tmp), calibrations, stages, on_stage)
+        reconstruction, mapping = mapped.reconstruction, mapped.mapping
     seconds["mapping"] = time.perf_counter() - began
 
     began = time.perf_counter()
     if options.refine == "ba":
-        refined = "focal lengths, principal points" + (
-            " and distortion" if refine["distortion"] else ""
-        )
-        _stage(f"bundle adjustment of {refined}", on_stage)
-        refine_intrinsics(reconstruction, distortion=refine["distortion"])
+        refine_calibrated(reconstruction, calibrations, on_stage)
     seconds["refine"] = time.perf_counter() - began
 
     model_dir = workspace / "sparse" / "0"
@@ -276,54 +226,30 @@ def _run_stages(
     return report
 
 
-def refined_while_mapping(calibrations: list[CameraCalibration]) -> dict[str, bool]:
-    """Which intrinsics mapping refines: those some camera's calibration did not determine,
-    and the distortion of camera models that have it (also in the final bundle adjustment).
-
-    A held or weakly determined value held fixed through mapping would stay as wrong
-    as the calibration left it; mapping that refines it ends far closer
-    (docs/hard_scenes.md).
-    """
-    focal = any(not (c.observable["fx"] and c.observable["fy"]) for c in calibrations)
-    principal = any(not (c.observable["cx"] and c.observable["cy"]) for c in calibrations)
-    # TrifocalCalib undistorts with the stored parameters and never estimates them: a
-    # camera model with distortion has it refined, as COLMAP's mapper does by default
-    # (held at COLMAP's k = 0, a real lens biases every intrinsic; docs/limitations.md).
-    distortion = any(c.model not in PINHOLE_MODELS for c in calibrations)
-    return {"focal_length": focal, "principal_point": principal, "distortion": distortion}
-
-
-def focal_estimated_cameras(calibrations: list[CameraCalibration]) -> list[int]:
-    """Camera ids whose focal length the calibration estimated from the images (not held)."""
-    return [int(camera_id) for c in calibrations if c.estimated["fx"] for camera_id in c.camera_ids]
-
-
-#: Triplets of the calibration whose pairs are candidates for a seeded initial pair.
-SEED_TRIPLETS = 8
-
-
-def seed_candidate_pairs(
-    calibrations: list[CameraCalibration], max_triplets: int = SEED_TRIPLETS
-) -> list[tuple[int, int]]:
-    """Image pairs of each camera's best triplets: candidates for a seeded initial pair.
-
-    Best: the triplets the solve kept (``inlier``), by MSAC score (msac, msac-opt)
-    and then inlier tracks; each contributes its three pairs (image ids).
-    """
-    pairs: list[tuple[int, int]] = []
-    for calibration in calibrations:
-        kept = [t for t in calibration.triplets if t.inlier] or list(calibration.triplets)
-        kept.sort(
-            key=lambda t: (t.score if t.score is not None else 0.0, t.num_inliers), reverse=True
-        )
-        for triplet in kept[:max_triplets]:
-            a, b, c = (int(i) for i in triplet.image_ids)
-            pairs += [(a, b), (b, c), (a, c)]
-    return list(dict.fromkeys((min(p), max(p)) for p in pairs))
-
-
-def _stage(message: str, on_stage: Callable[[str], None] | None) -> None:
-    """Announce a long stage in the log and to ``on_stage``."""
-    logger.info(message)
-    if on_stage is not None:
-        on_stage(message)
+def _features(
+    images: Path | None,
+    listing: ImageListing | None,
+    database: Path,
+    options: RunOptions,
+    on_stage: Callable[[str], None] | None,
+) -> DatabaseContents:
+    """The workspace's ``database.db``: a copy of ``--database`` (with what is still in its
+    ``-wal``), or SIFT features and matches of the listed images; its snapshot."""
+    if options.database is not None:
+        contents = read_database(options.database)  # validated (one-line errors), then copied
+        copy_database(options.database, database)
+        return contents
+    assert images is not None and listing is not None
+    names = listing.names
+    announce(f"features and matching for {len(names)} images (pycolmap SIFT)", on_stage)
+    build_database(
+        images,
+        database,
+        names,
+        max_image_size=options.max_image_size,
+        camera_model=options.camera_model,
+        matcher=options.matcher,
+        camera_mode=options.camera_mode,
+        progress=options.progress,
+    )
+    return read_database(database)

@@ -1,0 +1,330 @@
+"""From a COLMAP database to a calibrated ``pycolmap.Reconstruction`` in one call.
+
+:func:`reconstruct` is the stages of ``colmap-trifocal run`` after feature matching, on a
+database the caller already has:
+
+1. calibrate: the camera ids grouped into physical cameras and TrifocalCalib per group
+   (``intrinsics``), in a working copy of the database (``database.db`` of a temporary
+   folder; the user's database is read, never changed, unless ``write``);
+2. prepare: the estimate written into the copy as each camera's starting intrinsics, and
+   the images of each group moved onto the group's first camera, so that mapping and
+   bundle adjustment refine one camera per group, as the images share one lens;
+3. map: pycolmap incremental or global mapping from the copy, the intrinsics the
+   calibration determined held fixed and the others (and the distortion of models that
+   have it) refined; incremental mapping retried with relaxed initialisation on hard
+   motion (:func:`.mapping.incremental_mapping_with_retries`);
+4. refine (``refine="ba"``): the global bundle adjustment of ``run`` (focal lengths and
+   principal points with poses and points); ``"none"`` (the default) keeps the estimate.
+
+The same stages run ``run`` (:mod:`.workflow`), which adds the features, the workspace
+and the report. Intrinsics are in pixels, COLMAP's pixel convention (the centre of the
+top-left pixel at (0.5, 0.5)).
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pycolmap
+
+from ..common.errors import CalibrationError
+from ..common.log import logger
+from ..database.cameras import PINHOLE_MODELS
+from ..database.shared_cameras import merge_group_cameras
+from ..database.snapshot import DatabaseContents, read_database
+from ..database.sqlite_files import copy_database
+from ..database.writing import write_intrinsics
+from ..intrinsics.api import (
+    CalibrationOptions,
+    calibrate_contents,
+    check_options,
+    updated_cameras,
+)
+from ..intrinsics.results import CameraCalibration
+from .mapping import (
+    MAPPERS,
+    REFINE_CHOICES,
+    InitialPair,
+    MappingAttempt,
+    describe_attempts,
+    global_mapping,
+    incremental_mapping_with_retries,
+    refine_intrinsics,
+)
+
+#: Called with one line as each long stage starts (mapping, bundle adjustment).
+StageCallback = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class ReconstructOptions:
+    """Settings of :func:`reconstruct`; checked when built (:class:`CalibrationError`).
+
+    Attributes:
+        calibration: the calibration's options (method, prior, seed, grouping, ...); its
+            ``seed`` also seeds the mapper. ``calibration.write`` is refused: ``write``
+            below stores the estimate.
+        mapper: ``incremental`` (pycolmap's incremental mapping, retried on hard motion) or
+            ``global`` (pycolmap's global mapper, GLOMAP).
+        refine: ``none`` keeps the estimate where the calibration determined it; ``ba``
+            ends with the bundle adjustment of ``run`` (focal lengths and principal points
+            with poses and points, and the distortion of models that have it).
+        write: also store the estimate in the user's database (``<name>.bak`` first, as
+            ``calibrate --write``) and move the images of each group onto its first
+            camera there; without it the user's database is only read.
+        workdir: where the temporary working folder (the database copy, the mapper's
+            models) is made; None: the system's temporary folder. It is removed after.
+        progress: a bar of registered images on stderr (and the calibration's bars).
+    """
+
+    calibration: CalibrationOptions = field(default_factory=CalibrationOptions)
+    mapper: str = "incremental"
+    refine: str = "none"
+    write: bool = False
+    workdir: Path | None = None
+    progress: bool = False
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.calibration, CalibrationOptions):
+            raise CalibrationError(
+                f"calibration must be a CalibrationOptions, got {type(self.calibration).__name__}"
+            )
+        check_options(self.calibration)
+        if self.calibration.write:
+            raise CalibrationError(
+                "calibration.write is not used by reconstruct: set ReconstructOptions(write=True)"
+            )
+        check_choice("mapper", self.mapper, MAPPERS)
+        check_choice("refine", self.refine, REFINE_CHOICES)
+        for name in ("write", "progress"):
+            if not isinstance(getattr(self, name), bool):
+                raise CalibrationError(f"{name} must be True or False")
+        if self.workdir is not None and not Path(self.workdir).is_dir():
+            raise CalibrationError(f"workdir {self.workdir} is not a folder")
+
+
+def check_choice(name: str, value: object, choices: tuple[str, ...]) -> None:
+    """CalibrationError unless ``value`` is one of ``choices`` (``name``: the option)."""
+    if value not in choices:
+        raise CalibrationError(f"unknown {name} {value!r} (choose from {', '.join(choices)})")
+
+
+@dataclass
+class Mapped:
+    """What the mapping stage gave: the reconstruction and how it was made.
+
+    ``mapping`` is the report's ``mapping`` object (mapper, what was refined while
+    mapping, every attempt, the seeded pair, and a ``note`` when mapping was retried).
+    """
+
+    reconstruction: pycolmap.Reconstruction
+    mapping: dict[str, Any]
+
+
+def reconstruct(
+    database: Path | str,
+    images: Path | str | None = None,
+    options: ReconstructOptions | None = None,
+) -> tuple[pycolmap.Reconstruction, list[CameraCalibration]]:
+    """Calibrate the database's cameras, then map it into a calibrated reconstruction.
+
+    Args:
+        database: a COLMAP database with verified matches (any tool's: COLMAP, hloc, ...).
+        images: the image folder, only to colour the 3D points; None: uncoloured points
+            (no image folder is needed).
+        options: see :class:`ReconstructOptions` (default: msac-opt from the stored
+            cameras, incremental mapping, the estimate kept).
+
+    Returns:
+        The largest model pycolmap's mapper made (in memory; each camera group is one
+        shared ``pycolmap.Camera``, the group's first camera id), and the calibration's
+        result per camera group (``result.fx``, ``result.std``, ...).
+
+    Raises:
+        CalibrationError: bad input, or no model (the message says which).
+    """
+    options = ReconstructOptions() if options is None else options
+    if not isinstance(options, ReconstructOptions):
+        raise CalibrationError(
+            f"options must be a ReconstructOptions, got {type(options).__name__}"
+        )
+    database = Path(database)
+    image_dir = checked_image_folder(images)
+    contents = read_database(database)  # validated, one-line errors
+    with tempfile.TemporaryDirectory(prefix="colmap-trifocal-", dir=options.workdir) as tmp:
+        copy = Path(tmp) / "database.db"
+        copy_database(database, copy)  # with what is still in its -wal
+        calibrations = calibrate_for_mapping(contents, copy, options.calibration)
+        if options.write:
+            store_in_user_database(database, calibrations)
+        mapped = map_calibrated(copy, image_dir, Path(tmp) / "models", calibrations, options)
+    if options.refine == "ba":
+        refine_calibrated(mapped.reconstruction, calibrations)
+    return mapped.reconstruction, calibrations
+
+
+def checked_image_folder(images: Path | str | None) -> Path | None:
+    """The image folder as a Path (None stays None); CalibrationError if it is not a folder."""
+    if images is None:
+        return None
+    folder = Path(images)
+    if not folder.is_dir():
+        raise CalibrationError(f"image folder not found: {folder}")
+    return folder
+
+
+def calibrate_for_mapping(
+    contents: DatabaseContents,
+    database: Path,
+    options: CalibrationOptions,
+    *,
+    merge: bool = True,
+) -> list[CameraCalibration]:
+    """Calibrate ``contents`` and prepare ``database`` (a copy this tool owns) for mapping.
+
+    Every camera of each group gets the estimate as its starting intrinsics (also a group
+    the images determined nothing of: the start is the best it has), and with ``merge``
+    the images of each group are moved onto its first camera (:func:`merge_group_cameras`).
+    """
+    calibrations = calibrate_contents(contents, options)
+    write_intrinsics(database, updated_cameras(calibrations, determined_only=False), backup=False)
+    if merge:
+        merge_group_cameras(database, [list(c.camera_ids) for c in calibrations])
+    return calibrations
+
+
+def store_in_user_database(database: Path, calibrations: list[CameraCalibration]) -> None:
+    """``reconstruct(write=True)``: the estimate into the user's database (backup first, one
+    transaction, read back), then each group's images onto its first camera."""
+    written = write_intrinsics(database, updated_cameras(calibrations, determined_only=False))
+    logger.info("stored the estimate in %s (backup: %s)", database, written)
+    merge_group_cameras(database, [list(c.camera_ids) for c in calibrations])
+
+
+def map_calibrated(
+    database: Path,
+    images: Path | None,
+    output: Path,
+    calibrations: list[CameraCalibration],
+    options: ReconstructOptions,
+    on_stage: StageCallback | None = None,
+) -> Mapped:
+    """Map ``database`` (prepared by :func:`calibrate_for_mapping`) with ``options.mapper``,
+    holding what the calibration determined; the largest model and how it was made.
+
+    ``output`` receives the mapper's models (one folder per attempt).
+    """
+    refine = refined_while_mapping(calibrations)
+    seed = options.calibration.seed
+    announce(f"mapping (pycolmap {options.mapper})", on_stage)
+    attempts: list[MappingAttempt] = []
+    seeded: InitialPair | None = None
+    if options.mapper == "global":
+        reconstruction = global_mapping(
+            database,
+            images,
+            output,
+            refine["focal_length"] or refine["principal_point"],
+            seed=seed,
+            refine_distortion=refine["distortion"],
+        )
+    else:
+        reconstruction, attempts, seeded = incremental_mapping_with_retries(
+            database,
+            images,
+            output,
+            refine["focal_length"],
+            refine["principal_point"],
+            seed=seed,
+            progress=options.progress,
+            candidate_pairs=seed_candidate_pairs(calibrations),
+            known_focal_cameras=focal_estimated_cameras(calibrations),
+            refine_distortion=refine["distortion"],
+        )
+    mapping: dict[str, Any] = {
+        "mapper": options.mapper,
+        "refined_while_mapping": refine,
+        "attempts": [asdict(a) for a in attempts],
+        "seeded_pair": None if seeded is None else asdict(seeded),
+    }
+    retried = describe_attempts(attempts, seeded)
+    if retried:
+        logger.info(retried)
+        mapping["note"] = retried
+    return Mapped(reconstruction, mapping)
+
+
+def refine_calibrated(
+    reconstruction: pycolmap.Reconstruction,
+    calibrations: list[CameraCalibration],
+    on_stage: StageCallback | None = None,
+) -> None:
+    """The final bundle adjustment of ``run --refine ba``, in place: poses, points, focal
+    lengths and principal points, and the distortion of camera models that have it."""
+    distortion = refined_while_mapping(calibrations)["distortion"]
+    refined = "focal lengths, principal points" + (" and distortion" if distortion else "")
+    announce(f"bundle adjustment of {refined}", on_stage)
+    refine_intrinsics(reconstruction, distortion=distortion)
+
+
+def refined_while_mapping(calibrations: list[CameraCalibration]) -> dict[str, bool]:
+    """Which intrinsics mapping refines: those some camera's calibration did not determine,
+    and the distortion of camera models that have it (also in the final bundle adjustment).
+
+    A held or weakly determined value held fixed through mapping would stay as wrong
+    as the calibration left it; mapping that refines it ends far closer
+    (docs/hard_scenes.md).
+    """
+    focal = any(not (c.observable["fx"] and c.observable["fy"]) for c in calibrations)
+    principal = any(not (c.observable["cx"] and c.observable["cy"]) for c in calibrations)
+    # TrifocalCalib undistorts with the stored parameters and never estimates them: a
+    # camera model with distortion has it refined, as COLMAP's mapper does by default
+    # (held at COLMAP's k = 0, a real lens biases every intrinsic; docs/limitations.md).
+    distortion = any(c.model not in PINHOLE_MODELS for c in calibrations)
+    return {"focal_length": focal, "principal_point": principal, "distortion": distortion}
+
+
+def focal_estimated_cameras(calibrations: list[CameraCalibration]) -> list[int]:
+    """Camera ids whose focal length the calibration estimated from the images (not held)."""
+    return [int(camera_id) for c in calibrations if c.estimated["fx"] for camera_id in c.camera_ids]
+
+
+#: Triplets of the calibration whose pairs are candidates for a seeded initial pair.
+SEED_TRIPLETS = 8
+
+
+def seed_candidate_pairs(
+    calibrations: list[CameraCalibration], max_triplets: int = SEED_TRIPLETS
+) -> list[tuple[int, int]]:
+    """Image pairs of each camera's best triplets: candidates for a seeded initial pair.
+
+    Best: the triplets the solve kept (``inlier``), by MSAC score (msac, msac-opt)
+    and then inlier tracks; each contributes its three pairs (image ids).
+    """
+    pairs: list[tuple[int, int]] = []
+    for calibration in calibrations:
+        kept = [t for t in calibration.triplets if t.inlier] or list(calibration.triplets)
+        kept.sort(
+            key=lambda t: (t.score if t.score is not None else 0.0, t.num_inliers), reverse=True
+        )
+        for triplet in kept[:max_triplets]:
+            a, b, c = (int(i) for i in triplet.image_ids)
+            pairs += [(a, b), (b, c), (a, c)]
+    return list(dict.fromkeys((min(p), max(p)) for p in pairs))
+
+
+def announce(message: str, on_stage: StageCallback | None) -> None:
+    """Announce a long stage in the log and to ``on_stage``."""
+    logger.info(message)
+    if on_stage is not None:
+        on_stage(message)
+
+
+def timed(seconds: dict[str, float], stage: str, began: float) -> None:
+    """Record the wall seconds of ``stage`` since ``began`` (``time.perf_counter``)."""
+    seconds[stage] = time.perf_counter() - began
