@@ -16,8 +16,9 @@ from colmap_trifocal.intrinsics.inputs.prior import default_guess
 from colmap_trifocal.intrinsics.start.candidates import held_values
 from colmap_trifocal.intrinsics.start.focal_search import FocalSearchResult, search_focal
 from colmap_trifocal.reconstruction.mapping import (
+    RetryPlan,
     describe_attempts,
-    incremental_mapping_with_retries,
+    map_with_retries,
 )
 from colmap_trifocal.synthetic.database import scene_contents
 from colmap_trifocal.synthetic.demo import make_demo_database
@@ -211,8 +212,8 @@ def test_mapping_retries_with_relaxed_initialisation(tmp_path: Path) -> None:
     """
     database = tmp_path / "demo.db"
     make_demo_database(database, seed=1, num_images=6, num_points=400)
-    model, attempts, _ = incremental_mapping_with_retries(
-        database, None, tmp_path / "out", angles=(360.0, 4.0)
+    model, attempts, _ = map_with_retries(
+        database, None, tmp_path / "out", plan=RetryPlan(angles=(360.0, 4.0))
     )
     assert [a.init_min_tri_angle for a in attempts] == [360.0, 4.0]
     assert attempts[0].num_registered_images == 0
@@ -222,4 +223,4 @@ def test_mapping_retries_with_relaxed_initialisation(tmp_path: Path) -> None:
         "registered)"
     )
     with pytest.raises(CalibrationError, match="no initial pair at 360°"):
-        incremental_mapping_with_retries(database, None, tmp_path / "none", angles=(360.0,))
+        map_with_retries(database, None, tmp_path / "none", plan=RetryPlan(angles=(360.0,)))

@@ -222,6 +222,8 @@ def test_docstrings_and_comments_hold_no_history() -> None:
 INTRINSICS_ORDER = (
     "solve",
     "options",
+    "result_parts",
+    "camera_writing",
     "results",
     "inputs",
     "start",

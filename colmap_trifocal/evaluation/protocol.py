@@ -31,16 +31,16 @@ import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
-from ..common.log import logger
+from ..common.log import keep_colmap_quiet, logger
 from ..database.features import build_database
 from ..database.snapshot import DatabaseContents, read_database
 from ..datasets import read_scene
 from ..datasets.base import DatasetScene
 from ..intrinsics.api import CalibrationOptions, calibrate_contents_methods
 from ..reconstruction.mapping import (
+    Refinement,
     camera_intrinsics,
     incremental_mapping,
-    keep_colmap_quiet,
     refine_intrinsics,
 )
 from .records import RunRecord
@@ -276,7 +276,7 @@ def _pycolmap_baseline(task: RunTask, method: str, common: dict) -> RunRecord:
                     database,
                     None,
                     Path(folder) / "sparse",
-                    refine_intrinsics_while_mapping=True,
+                    refine=Refinement(focal_length=True, principal_point=True),
                     seed=task.seed % 2**31,
                 )
                 refine_intrinsics(model)

@@ -29,7 +29,8 @@ def run_tasks(
     workers: int | None = None,
     dask_address: str | None = None,
     description: str = "",
-    progress: bool = False,
+    # Positional: cli/synthetic.py and cli/batch.py pass it so (being edited elsewhere).
+    progress: bool = False,  # noqa: FBT001, FBT002
 ) -> list[Any]:
     """``[function(task) for task in tasks]`` in order, with a progress bar.
 
@@ -49,7 +50,8 @@ def completed_tasks(
     workers: int | None = None,
     dask_address: str | None = None,
     description: str = "",
-    progress: bool = False,
+    # Positional: cli/synthetic.py and cli/batch.py pass it so (being edited elsewhere).
+    progress: bool = False,  # noqa: FBT001, FBT002
 ) -> Iterator[tuple[int, Any]]:
     """``(index, function(tasks[index]))`` for every task, as each finishes, with a bar.
 

@@ -255,6 +255,16 @@ def _floor_record(
     )
 
 
+def _checked_methods(methods: tuple[str, ...]) -> tuple[str, ...]:
+    """``methods`` without repeats, in their order; CalibrationError on an unknown one."""
+    known = (*_TRIFOCAL_METHODS, "fundamental", BA_FLOOR)
+    methods = tuple(dict.fromkeys(methods))  # drop repeats, keep the order
+    unknown = [m for m in methods if m not in known]
+    if unknown:
+        raise CalibrationError(f"unknown method {unknown[0]!r} (choose from {known})")
+    return methods
+
+
 def run_synthetic_case(
     noise_px: float,
     run: int,
@@ -284,11 +294,7 @@ def run_synthetic_case(
     Raises:
         CalibrationError: an unknown method.
     """
-    known = (*_TRIFOCAL_METHODS, "fundamental", BA_FLOOR)
-    methods = tuple(dict.fromkeys(methods))  # drop repeats, keep the order
-    unknown = [m for m in methods if m not in known]
-    if unknown:
-        raise CalibrationError(f"unknown method {unknown[0]!r} (choose from {known})")
+    methods = _checked_methods(methods)
     scene_rng, prior_rng, calibration_seed = case_seeds(seed)
     scene = make_scene(num_points, NUM_CAMERAS, noise_px, outlier_ratio, seed=scene_rng)
     truth = scene.intrinsics

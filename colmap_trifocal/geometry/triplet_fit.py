@@ -43,7 +43,7 @@ import cv2
 import numpy as np
 
 from ..common.log import logger
-from .planarity import dominant_plane, plane_parallax_cameras
+from .planarity import DominantPlane, dominant_plane, plane_parallax_cameras
 from .projective_ba import ProjectiveBAResult, initial_points, refine_triplet
 from .tensor_estimation import BA_TOLERANCE, TensorEstimationOptions, TripletTensor, transfer_errors
 from .trifocal import cameras_from_tensor, linear_tensor, normalize_tensor, tensor_from_cameras
@@ -249,20 +249,9 @@ def fit_triplet(
         else np.sort(rng.choice(n, size=options.max_scored_tracks, replace=False))
     )
     P2h, P3h, calibrated = _hypotheses(x, scored, rng, options, pixel_scale)
-    plane = (
-        dominant_plane(x, options.inlier_threshold_px / pixel_scale.mean())
-        if options.planar_share <= 1.0
-        else None
-    )
-    planar = plane is not None and plane.share >= options.planar_share
-    starts: list[tuple[np.ndarray, np.ndarray]] = []
-    if planar:
-        assert plane is not None
-        parallax = plane_parallax_cameras(
-            x, plane, options.inlier_threshold_px / pixel_scale.mean(), rng
-        )
-        if parallax is not None:
-            starts.append(parallax)
+    plane, parallax = _planar_start(x, options, pixel_scale, rng)
+    planar = plane is not None
+    starts: list[tuple[np.ndarray, np.ndarray]] = [] if parallax is None else [parallax]
     errors = transfer_errors(x[:, scored], P2h, P3h, pixel_scale)
     scores = np.minimum(errors, threshold2).sum(axis=1)
     best = int(np.argmin(scores))
@@ -283,6 +272,25 @@ def fit_triplet(
         ", the calibrated one deferred" if deferred is not None else "",
     )
     return fit
+
+
+def _planar_start(
+    x: np.ndarray,
+    options: TensorEstimationOptions,
+    pixel_scale: np.ndarray,
+    rng: np.random.Generator,
+) -> tuple[DominantPlane | None, tuple[np.ndarray, np.ndarray] | None]:
+    """The dominant plane of the tracks x (3, n, 2) when it holds ``planar_share`` of
+    them (else None), and the plane + parallax start from it (None: none)."""
+    if not options.planar_share <= 1.0:
+        return None, None
+    plane = dominant_plane(x, options.inlier_threshold_px / pixel_scale.mean())
+    if plane is None or plane.share < options.planar_share:
+        return None, None
+    parallax = plane_parallax_cameras(
+        x, plane, options.inlier_threshold_px / pixel_scale.mean(), rng
+    )
+    return plane, parallax
 
 
 def _hypotheses(

@@ -187,7 +187,7 @@ def unusable_reason(path: Path, max_image_size: int) -> str | None:
     if incomplete is not None:
         return incomplete
     with keep_colmap_quiet():  # the decoder's own messages (libpng's), unless -vv
-        bitmap = pycolmap.Bitmap.read(str(path), False)
+        bitmap = pycolmap.Bitmap.read(str(path), as_rgb=False)
     if bitmap is None:
         return "not an image COLMAP can decode"
     width, height = int(bitmap.width), int(bitmap.height)

@@ -135,7 +135,8 @@ def calibrate_model(
     output: Path,
     cameras: dict[int, CameraInfo],
     refine: str = "ba",
-    refine_distortion: bool = False,
+    # Positional: cli/calibrate.py passes it so (being edited elsewhere).
+    refine_distortion: bool = False,  # noqa: FBT001, FBT002
     reconstruction: pycolmap.Reconstruction | None = None,
 ) -> ModelUpdate:
     """Copy the model at ``model`` to ``output`` with ``cameras``' params, refined on request.
@@ -161,7 +162,7 @@ def calibrate_model(
     with_estimate = reprojection_error(reconstruction)
     refined = None
     if refine == "ba":
-        refine_intrinsics(reconstruction, refine_distortion)
+        refine_intrinsics(reconstruction, distortion=refine_distortion)
         refined = reprojection_error(reconstruction)
     Path(output).mkdir(parents=True, exist_ok=True)
     reconstruction.write(output)

@@ -55,7 +55,8 @@ def refuse_workspace_over_images(images: Path | None, workspace: Path) -> None:
 
 
 @contextmanager
-def open_workspace(workspace: Path, overwrite: bool) -> Iterator[Path]:
+# ``overwrite`` positional: reconstruction/workflow.py passes it so (being edited elsewhere).
+def open_workspace(workspace: Path, overwrite: bool) -> Iterator[Path]:  # noqa: FBT001
     """Create and lock ``workspace``, then :func:`prepare_workspace` it; unlock at the end.
 
     Raises:
@@ -69,7 +70,7 @@ def open_workspace(workspace: Path, overwrite: bool) -> Iterator[Path]:
     if not can_create_in(workspace):
         raise CalibrationError(f"cannot write to workspace {workspace}: permission denied")
     with workspace_lock(workspace):
-        prepare_workspace(workspace, overwrite)
+        prepare_workspace(workspace, overwrite=overwrite)
         yield workspace
 
 
@@ -131,7 +132,7 @@ def _acquire(path: Path) -> int:
         os.close(fd)
 
 
-def prepare_workspace(workspace: Path, overwrite: bool) -> None:
+def prepare_workspace(workspace: Path, *, overwrite: bool) -> None:
     """Refuse a workspace with other content unless ``overwrite``; then remove old outputs.
 
     The lock file does not count as content. With ``overwrite`` only this tool's outputs

@@ -47,7 +47,48 @@ def _path(
     return np.stack([x, np.zeros_like(x), z], axis=1), heading
 
 
-def driving_sequence(
+def _street_points(
+    num_points: int,
+    total: float,
+    first_leg: float,
+    turn: float,
+    turn_radius: float,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """(n, 3) points on the facades and the road along the path (see
+    :func:`driving_sequence`), ``total`` m of it driven."""
+    # Points along the street, from 10 m before the start to 40 m beyond the end.
+    along = rng.uniform(-10.0, total + 40.0, num_points)
+    base, heading = _path(along, first_leg, turn, turn_radius)
+    normal = np.stack([np.cos(heading), np.zeros_like(heading), -np.sin(heading)], axis=1)
+    facades = num_points * 3 // 4
+    lateral = np.concatenate(
+        [
+            rng.choice([-1.0, 1.0], facades) * rng.uniform(4.0, 10.0, facades),
+            rng.uniform(-4.0, 4.0, num_points - facades),
+        ]
+    )
+    heights = np.concatenate([rng.uniform(-6.0, 1.5, facades), np.full(num_points - facades, 1.5)])
+    points = base + lateral[:, None] * normal
+    points[:, 1] = heights
+    return points
+
+
+def _shaky_rotations(headings: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """World-to-camera rotations (m, 3, 3) looking along ``headings`` (rad), yaw and pitch
+    jittered by 0.3°."""
+    num_images = len(headings)
+    yaws = headings + rng.normal(0.0, np.deg2rad(0.3), num_images)
+    rotations = yaw_rotations(yaws)
+    pitch = rng.normal(0.0, np.deg2rad(0.3), num_images)
+    c, s = np.cos(pitch), np.sin(pitch)
+    tilt = np.zeros((num_images, 3, 3))
+    tilt[:, 0, 0] = 1.0
+    tilt[:, 1, 1], tilt[:, 1, 2], tilt[:, 2, 1], tilt[:, 2, 2] = c, -s, s, c
+    return tilt @ rotations
+
+
+def driving_sequence(  # noqa: PLR0913 (a scene generator: every knob a keyword with a default)
     num_images: int = 50,
     turn_deg: float = 0.0,
     noise_px: float = 0.5,
@@ -80,29 +121,9 @@ def driving_sequence(
     first_leg = max((total - arc) / 2.0, 0.0)
     centers, headings = _path(step * np.arange(num_images), first_leg, turn, turn_radius)
     centers[:, 0] += rng.normal(0.0, 0.05, num_images)
-    # Points along the street, from 10 m before the start to 40 m beyond the end.
-    along = rng.uniform(-10.0, total + 40.0, num_points)
-    base, heading = _path(along, first_leg, turn, turn_radius)
-    normal = np.stack([np.cos(heading), np.zeros_like(heading), -np.sin(heading)], axis=1)
-    facades = num_points * 3 // 4
-    lateral = np.concatenate(
-        [
-            rng.choice([-1.0, 1.0], facades) * rng.uniform(4.0, 10.0, facades),
-            rng.uniform(-4.0, 4.0, num_points - facades),
-        ]
-    )
-    heights = np.concatenate([rng.uniform(-6.0, 1.5, facades), np.full(num_points - facades, 1.5)])
-    points = base + lateral[:, None] * normal
-    points[:, 1] = heights
-    yaws = headings + rng.normal(0.0, np.deg2rad(0.3), num_images)
-    rotations = yaw_rotations(yaws)
-    pitch = rng.normal(0.0, np.deg2rad(0.3), num_images)
-    c, s = np.cos(pitch), np.sin(pitch)
-    tilt = np.zeros((num_images, 3, 3))
-    tilt[:, 0, 0] = 1.0
-    tilt[:, 1, 1], tilt[:, 1, 2], tilt[:, 2, 1], tilt[:, 2, 2] = c, -s, s, c
+    points = _street_points(num_points, total, first_leg, turn, turn_radius, rng)
     return scene_from_poses(
-        tilt @ rotations,
+        _shaky_rotations(headings, rng),
         centers,
         points,
         noise_px,

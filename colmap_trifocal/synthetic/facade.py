@@ -79,7 +79,7 @@ def facade_points(
     return np.stack([x, y, z], axis=1)
 
 
-def facade_scene(
+def facade_scene(  # noqa: PLR0913 (a scene generator: every knob a keyword with a default)
     relief: float = 0.02,
     num_images: int = 10,
     noise_px: float = 0.5,
@@ -109,6 +109,26 @@ def facade_scene(
     """
     rng = _as_generator(seed)
     points = facade_points(num_points, relief, distance, rng)
+    rotations, centers = _handheld_poses(num_images, walk, distance, rng)
+    scene = scene_from_poses(
+        rotations,
+        centers,
+        points,
+        noise_px,
+        rng,
+        intrinsics=DEFAULT_INTRINSICS if intrinsics is None else intrinsics,
+        width=width,
+        height=height,
+    )
+    _add_outliers(scene, outlier_ratio, rng)
+    return scene
+
+
+def _handheld_poses(
+    num_images: int, walk: float, distance: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """World-to-camera rotations (m, 3, 3) and centres (m, 3) of shots along the walk,
+    each aimed at a spot of the facade ``distance`` m away (see :func:`facade_scene`)."""
     along = np.linspace(-walk / 2.0, walk / 2.0, num_images)
     centers = np.stack(
         [
@@ -129,18 +149,7 @@ def facade_scene(
         axis=1,
     )
     rotations = _level_look_at(targets - centers, rng.normal(0.0, np.deg2rad(2.0), num_images))
-    scene = scene_from_poses(
-        rotations,
-        centers,
-        points,
-        noise_px,
-        rng,
-        intrinsics=DEFAULT_INTRINSICS if intrinsics is None else intrinsics,
-        width=width,
-        height=height,
-    )
-    _add_outliers(scene, outlier_ratio, rng)
-    return scene
+    return rotations, centers
 
 
 def _level_look_at(directions: np.ndarray, rolls: np.ndarray) -> np.ndarray:

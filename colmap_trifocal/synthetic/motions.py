@@ -56,7 +56,7 @@ def yaw_rotations(angles: np.ndarray) -> np.ndarray:
     return np.stack([rows_x, rows_y, rows_z], axis=1)
 
 
-def scene_from_poses(
+def scene_from_poses(  # noqa: PLR0913 (a scene generator: the poses, points and every knob)
     rotations: np.ndarray,
     centers: np.ndarray,
     points: np.ndarray,

@@ -179,7 +179,29 @@ def _camera_directions(
     raise ValueError(f"could not place {count} cameras {np.rad2deg(min_angle):.1f} degrees apart")
 
 
-def make_scene(
+def _check_scene_arguments(
+    num_points: int, num_cameras: int, noise_px: float, outlier_ratio: float
+) -> None:
+    """ValueError on a scene :func:`make_scene` cannot make."""
+    if num_points < 1 or num_cameras < 1:
+        raise ValueError("num_points and num_cameras must be positive")
+    if noise_px < 0 or not 0.0 <= outlier_ratio <= 1.0:
+        raise ValueError("noise_px must be >= 0 and outlier_ratio in [0, 1]")
+
+
+@dataclass(frozen=True)
+class _Views:
+    """The cameras of a scene: K (3, 3), world-to-camera R (m, 3, 3) and t (m, 3), and
+    the image size (pixels)."""
+
+    K: np.ndarray
+    rotations: np.ndarray
+    translations: np.ndarray
+    width: int
+    height: int
+
+
+def make_scene(  # noqa: PLR0913 (a scene generator: every knob a keyword with a default)
     num_points: int = 500,
     num_cameras: int = 3,
     noise_px: float = 0.0,
@@ -207,13 +229,8 @@ def make_scene(
         intrinsics: (fx, fy, cx, cy) in pixels; default :data:`DEFAULT_INTRINSICS`.
         width, height: image size, pixels.
         cube_side: side of the cube of points (centred at the origin), world units.
-        radius: mean distance of the camera centres from the origin, world units.
-        radius_jitter: the distance is uniform in ``radius ± radius_jitter``.
-        cone_deg: maximal angle between an optical axis and the direction to the
-            origin, degrees.
-        min_separation_deg: minimal angle between two camera centres seen from the
-            origin, degrees (centres are redrawn until it holds), so that no two
-            cameras nearly coincide.
+        radius, radius_jitter, cone_deg, min_separation_deg: the cameras' placement
+            (:func:`place_cameras_around_origin`).
         max_tries: draws of camera centres, and batches of candidate points, at most.
 
     Raises:
@@ -221,27 +238,20 @@ def make_scene(
             ``min_separation_deg`` or when too few points are visible in all views
             (e.g. a very narrow field of view or a large ``cone_deg``).
     """
-    if num_points < 1 or num_cameras < 1:
-        raise ValueError("num_points and num_cameras must be positive")
-    if noise_px < 0 or not 0.0 <= outlier_ratio <= 1.0:
-        raise ValueError("noise_px must be >= 0 and outlier_ratio in [0, 1]")
+    _check_scene_arguments(num_points, num_cameras, noise_px, outlier_ratio)
     rng = _as_generator(seed)
     params = np.asarray(DEFAULT_INTRINSICS if intrinsics is None else intrinsics, dtype=float)
-    K = intrinsics_matrix(params)
     rotations, translations = place_cameras_around_origin(
         num_cameras, rng, radius, radius_jitter, cone_deg, min_separation_deg, max_tries
     )
-    points = _points_visible_in_all_views(
-        K, rotations, translations, num_points, cube_side, width, height, rng, max_tries
-    )
-    observations, outlier_views = _observe(
-        K, rotations, translations, points, noise_px, outlier_ratio, width, height, rng
-    )
+    views = _Views(intrinsics_matrix(params), rotations, translations, width, height)
+    points = _points_visible_in_all_views(views, num_points, cube_side, rng, max_tries)
+    observations, outlier_views = _observe(views, points, noise_px, outlier_ratio, rng)
     return SyntheticScene(
-        K=K,
+        K=views.K,
         intrinsics=params.copy(),
-        rotations=rotations,
-        translations=translations,
+        rotations=views.rotations,
+        translations=views.translations,
         points=points,
         observations=observations,
         outliers=outlier_views >= 0,
@@ -262,7 +272,17 @@ def place_cameras_around_origin(
 ) -> tuple[np.ndarray, np.ndarray]:
     """World-to-camera (R (m,3,3), t (m,3)) of cameras on a sphere, looking near the origin.
 
-    See :func:`make_scene` for the arguments (world units and degrees).
+    Args:
+        num_cameras: cameras (m).
+        rng: the random generator (advanced).
+        radius: mean distance of the camera centres from the origin, world units.
+        radius_jitter: the distance is uniform in ``radius ± radius_jitter``.
+        cone_deg: maximal angle between an optical axis and the direction to the
+            origin, degrees.
+        min_separation_deg: minimal angle between two camera centres seen from the
+            origin, degrees (centres are redrawn until it holds), so that no two
+            cameras nearly coincide.
+        max_tries: draws of camera centres at most.
     """
     directions = _camera_directions(num_cameras, np.deg2rad(min_separation_deg), rng, max_tries)
     centers = (
@@ -276,13 +296,9 @@ def place_cameras_around_origin(
 
 
 def _points_visible_in_all_views(
-    K: np.ndarray,
-    rotations: np.ndarray,
-    translations: np.ndarray,
+    views: _Views,
     num_points: int,
     cube_side: float,
-    width: int,
-    height: int,
     rng: np.random.Generator,
     max_tries: int,
 ) -> np.ndarray:
@@ -291,13 +307,13 @@ def _points_visible_in_all_views(
     count = 0
     for _ in range(max_tries):
         candidates = rng.uniform(-cube_side / 2, cube_side / 2, size=(2 * num_points, 3))
-        pixels, depth = _project(K, rotations, translations, candidates)
+        pixels, depth = _project(views.K, views.rotations, views.translations, candidates)
         inside = (
             (depth > 0)
             & (pixels[..., 0] >= 0)
-            & (pixels[..., 0] <= width)
+            & (pixels[..., 0] <= views.width)
             & (pixels[..., 1] >= 0)
-            & (pixels[..., 1] <= height)
+            & (pixels[..., 1] <= views.height)
         )
         visible = candidates[np.all(inside, axis=0)]
         kept.append(visible)
@@ -305,24 +321,21 @@ def _points_visible_in_all_views(
         if count >= num_points:
             return np.concatenate(kept)[:num_points]
     raise ValueError(
-        f"only {count} of {num_points} points are visible in all {len(rotations)} views"
+        f"only {count} of {num_points} points are visible in all {len(views.rotations)} views"
     )
 
 
 def _observe(
-    K: np.ndarray,
-    rotations: np.ndarray,
-    translations: np.ndarray,
+    cameras: _Views,
     points: np.ndarray,
     noise_px: float,
     outlier_ratio: float,
-    width: int,
-    height: int,
     rng: np.random.Generator,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Noisy pixels (m, n, 2) and, per track, the view replaced by an outlier (−1: none)."""
-    num_cameras, num_points = len(rotations), len(points)
-    exact, _ = _project(K, rotations, translations, points)
+    num_cameras, num_points = len(cameras.rotations), len(points)
+    width, height = cameras.width, cameras.height
+    exact, _ = _project(cameras.K, cameras.rotations, cameras.translations, points)
     observations = exact + rng.uniform(-noise_px, noise_px, size=exact.shape)
     outlier_views = np.full(num_points, -1)
     num_outliers = int(round(outlier_ratio * num_points))
