@@ -169,7 +169,6 @@ def _reported(given: AssessInput) -> _Reported:
             # principal point (pycolmap refines both coordinates or neither).
             reported_std[name] = float(candidate.held_std[index] * held_focal[index])
             estimate[index] = polished.intrinsics[index]
-    _hold_where_undecided(given, estimate, reported_std, observable, estimated, source)
     if lens is not None and source["fx"] in ("focal-search", "prior"):
         focal_std = reported_std["fx"] or candidate.held_std[0] * held_focal[0]
         lens = with_held_focal(lens, float(focal_std / estimate[0]))
@@ -191,43 +190,6 @@ def _reported(given: AssessInput) -> _Reported:
 #: How far a sensor's pixels are from square, relative (fy / fx − 1): what a single focal
 #: length leaves unknown of each axis's (docs/uncertainty.md).
 SQUARE_PIXELS_STD = 0.001
-#: A weakly determined parameter whose estimate lies within this many stds of the start
-#: it was given is held at that start: the images do not move it decisively.
-DECISIVE = 2.0
-
-
-def _hold_where_undecided(
-    given: AssessInput,
-    estimate: np.ndarray,
-    std: dict[str, float | None],
-    observable: dict[str, bool],
-    estimated: dict[str, bool],
-    source: dict[str, str],
-) -> None:
-    """Hold, in place, each weakly determined estimate (estimated, not within tolerance)
-    that lies within ``DECISIVE`` stds of the start it was given: where the evidence is
-    not decisive the start is the best value the run has (a start that is right stays
-    right), known as well as the estimate's std plus the move the images suggested. A
-    tied fy follows its fx."""
-    prior = np.asarray(given.data.prior, float)
-    single_focal = given.data.camera.single_focal
-    for index, name in enumerate(PARAMETER_NAMES):
-        value = std[name]
-        if source[name] != "trifocal" or observable[name] or value is None:
-            continue
-        if single_focal and name == "fy":
-            continue  # one focal length: decided with fx
-        move = abs(float(estimate[index]) - float(prior[index]))
-        if move > DECISIVE * value:
-            continue
-        estimate[index] = prior[index]
-        std[name] = value + move
-        estimated[name], source[name] = False, "prior"
-        if name == "fx" and (single_focal or source["fy"] == "tied"):
-            # fy goes with fx: held at the start's fy too (one focal length: the same).
-            estimate[1] = estimate[0] if single_focal else prior[1]
-            std["fy"] = std["fx"] * estimate[1] / estimate[0]
-            estimated["fy"], source["fy"] = False, "prior"
 
 
 def parameter_sources(
