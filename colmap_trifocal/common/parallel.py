@@ -56,6 +56,7 @@ def map_jobs(
     jobs: Sequence[Any],
     workers: int | None = None,
     description: str = "",
+    *,
     progress: bool = False,
 ) -> list[Any]:
     """``[function(job) for job in jobs]``, in order, over ``workers`` threads.

@@ -75,7 +75,7 @@ def format_ids(ids: tuple[int, ...] | list[int]) -> str:
     return ", ".join(parts)
 
 
-def _auto_key(camera: CameraInfo, rig_sensor: bool) -> tuple:
+def _auto_key(camera: CameraInfo, *, rig_sensor: bool) -> tuple:
     """What two camera ids must share to be one physical camera under ``auto``."""
     own = camera.camera_id if rig_sensor else None
     return (
@@ -128,7 +128,9 @@ def group_cameras(
     else:
         by_key: dict[tuple, list[int]] = {}
         for c in used:
-            by_key.setdefault(_auto_key(cameras[c], c in rig_sensor_cameras), []).append(c)
+            by_key.setdefault(_auto_key(cameras[c], rig_sensor=c in rig_sensor_cameras), []).append(
+                c
+            )
         members = sorted(by_key.values())
     return [
         CameraGroup(

@@ -45,10 +45,11 @@ def check_max_image_size(value: int) -> None:
         )
 
 
-def build_database(
+def build_database(  # noqa: PLR0913 (COLMAP's extraction and matching settings, each a keyword)
     image_dir: Path,
     database: Path,
     image_names: list[str] | None = None,
+    *,
     max_image_size: int = 1600,
     camera_model: str = "PINHOLE",
     matcher: str = "exhaustive",
@@ -56,7 +57,6 @@ def build_database(
     camera_mode: str | None = None,
     num_threads: int = -1,
     seed: int | None = None,
-    *,
     progress: bool = False,
 ) -> Path:
     """Extract SIFT features (CPU) and match them, writing a new COLMAP database.

@@ -206,8 +206,8 @@ def merge_group_cameras(database: Path, groups: list[list[int]], *, backup: bool
             tables = {row[0] for row in con.execute("SELECT name FROM sqlite_master")}
             rigs = {"rigs", "rig_sensors", "frames", "frame_data"} <= tables
             con.execute("BEGIN IMMEDIATE")
-            _merge_and_commit(con, merges, rigs, database, backup)
-            _check_merged(con, removed, rigs, database)
+            _merge_and_commit(con, merges, database, rigs=rigs, backup=backup)
+            _check_merged(con, removed, database, rigs=rigs)
     except sqlite3.Error as exc:
         raise database_error(exc, database, "merge the cameras of") from None
     logger.info(
@@ -219,8 +219,9 @@ def merge_group_cameras(database: Path, groups: list[list[int]], *, backup: bool
 def _merge_and_commit(
     con: sqlite3.Connection,
     merges: list[tuple[int, list[int]]],
-    rigs: bool,
     database: Path,
+    *,
+    rigs: bool,
     backup: bool,
 ) -> None:
     """Inside the caller's ``BEGIN IMMEDIATE``: check, back up, move, COMMIT (SIGINT,
@@ -228,7 +229,7 @@ def _merge_and_commit(
     the backup (while the lock is held) and rolls back."""
     made = None
     try:
-        _check_database_groups(con, merges, rigs)
+        _check_database_groups(con, merges, rigs=rigs)
         made = back_up_locked(database) if backup else None
         for keep, others in merges:
             marks = ",".join("?" * len(others))
@@ -249,7 +250,7 @@ def _merge_and_commit(
 
 
 def _check_database_groups(
-    con: sqlite3.Connection, merges: list[tuple[int, list[int]]], rigs: bool
+    con: sqlite3.Connection, merges: list[tuple[int, list[int]]], *, rigs: bool
 ) -> None:
     """CalibrationError unless each group's cameras exist, share model and size, and are
     each the only sensor of their rig."""
@@ -281,7 +282,9 @@ def _check_database_groups(
             )
 
 
-def _check_merged(con: sqlite3.Connection, removed: list[int], rigs: bool, database: Path) -> None:
+def _check_merged(
+    con: sqlite3.Connection, removed: list[int], database: Path, *, rigs: bool
+) -> None:
     """Raise unless no image, camera or frame refers to a removed camera any more."""
     marks = ",".join("?" * len(removed))
     queries = [

@@ -125,6 +125,7 @@ def _verified_pairs(
     geometries: list[pycolmap.TwoViewGeometry],
     contents: DatabaseContents,
     path: Path,
+    *,
     fundamentals: bool,
 ) -> Counter[str]:
     """Fill ``contents.matches`` (and, if asked, ``contents.fundamentals``).
@@ -267,7 +268,7 @@ def _check_keypoints_finite(contents: DatabaseContents, path: Path) -> None:
 
 
 def _read_snapshot(
-    snapshot: Path, path: Path, fundamentals: bool = False
+    snapshot: Path, path: Path, *, fundamentals: bool = False
 ) -> tuple[DatabaseContents, Counter[str]]:
     """Read the snapshot (checked by :func:`_check_snapshot`) with pycolmap (``path`` is only
     used in messages).
@@ -295,7 +296,7 @@ def _read_snapshot(
         raise CalibrationError(
             f"corrupt database: images refer to missing camera {missing[0]}: {path}"
         )
-    skipped = _verified_pairs(pair_ids, geometries, contents, path, fundamentals)
+    skipped = _verified_pairs(pair_ids, geometries, contents, path, fundamentals=fundamentals)
     return contents, skipped
 
 
@@ -323,7 +324,7 @@ def _no_matches_error(skipped: Counter[str], num_matched_pairs: int, path: Path)
     return f"database has no verified matches (run COLMAP feature matching first): {path}"
 
 
-def read_database(path: Path, fundamentals: bool = False) -> DatabaseContents:
+def read_database(path: Path, *, fundamentals: bool = False) -> DatabaseContents:
     """Read cameras, images, raw keypoints and verified matches from a COLMAP database.
 
     The file at ``path`` stays byte-identical and no companion files are left behind
@@ -345,7 +346,7 @@ def read_database(path: Path, fundamentals: bool = False) -> DatabaseContents:
         snapshot = Path(tmp) / "snapshot.db"
         copy_database(path, snapshot, without_blobs=SKIPPED_TABLES)
         num_matched_pairs = _check_snapshot(snapshot, path)
-        contents, skipped = _read_snapshot(snapshot, path, fundamentals)
+        contents, skipped = _read_snapshot(snapshot, path, fundamentals=fundamentals)
     num_images = len(contents.image_names)
     if num_images == 0:
         raise CalibrationError(f"database has no images: {path}")

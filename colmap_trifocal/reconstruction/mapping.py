@@ -27,7 +27,6 @@ from .mapping_retries import (
     choose_initial_pair,
     describe_attempts,
     focal_marked_known,
-    incremental_mapping_with_retries,
     map_with_retries,
     measure_pairs,
 )
@@ -58,7 +57,6 @@ __all__ = [
     "focal_marked_known",
     "global_mapping",
     "incremental_mapping",
-    "incremental_mapping_with_retries",
     "map_with_retries",
     "mapping_options",
     "mean_reprojection_error",

@@ -230,34 +230,6 @@ def _seeded_attempts(
     return chosen, False
 
 
-def incremental_mapping_with_retries(  # noqa: PLR0913 (reconstruction/pipeline.py's call)
-    database: Path,
-    image_dir: Path | None,
-    output_dir: Path,
-    # Positional: reconstruction/pipeline.py passes them so (being edited elsewhere).
-    refine_focal_length: bool = False,  # noqa: FBT001, FBT002
-    refine_principal_point: bool = False,  # noqa: FBT001, FBT002
-    *,
-    seed: int = 0,
-    progress: bool = False,
-    angles: tuple[float, ...] = INIT_TRI_ANGLES,
-    candidate_pairs: list[tuple[int, int]] | None = None,
-    known_focal_cameras: list[int] | None = None,
-    refine_distortion: bool = False,
-) -> tuple[pycolmap.Reconstruction, list[MappingAttempt], InitialPair | None]:
-    """:func:`map_with_retries` with its options as separate arguments (the form
-    ``reconstruction/pipeline.py`` calls; new code calls :func:`map_with_retries`)."""
-    return map_with_retries(
-        database,
-        image_dir,
-        output_dir,
-        refine=Refinement(refine_focal_length, refine_principal_point, refine_distortion),
-        plan=RetryPlan(angles, candidate_pairs, known_focal_cameras),
-        seed=seed,
-        progress=progress,
-    )
-
-
 def choose_initial_pair(
     database: Path,
     candidate_pairs: list[tuple[int, int]],

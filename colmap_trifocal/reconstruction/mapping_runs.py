@@ -134,9 +134,8 @@ def global_mapping(
     database: Path,
     image_dir: Path | None,
     output_dir: Path,
-    # Positional: reconstruction/pipeline.py passes it so (being edited elsewhere).
-    refine_intrinsics_while_mapping: bool | None = False,  # noqa: FBT001, FBT002
     *,
+    refine_intrinsics_while_mapping: bool | None = False,
     seed: int = 0,
     refine_distortion: bool = False,
 ) -> pycolmap.Reconstruction:

@@ -12,7 +12,7 @@ database the caller already has:
 3. map: pycolmap incremental or global mapping from the copy, the intrinsics the
    calibration determined held fixed and the others (and the distortion of models that
    have it) refined; incremental mapping retried with relaxed initialisation on hard
-   motion (:func:`.mapping.incremental_mapping_with_retries`);
+   motion (:func:`.mapping_retries.map_with_retries`);
 4. refine (``refine="ba"``): the global bundle adjustment of ``run`` (focal lengths and
    principal points with poses and points); ``"none"`` (the default) keeps the estimate.
 
@@ -46,16 +46,15 @@ from ..intrinsics.api import (
     updated_cameras,
 )
 from ..intrinsics.results import CameraCalibration
-from .mapping import (
-    MAPPERS,
-    REFINE_CHOICES,
+from .mapping import MAPPERS, REFINE_CHOICES, refine_intrinsics
+from .mapping_retries import (
     InitialPair,
     MappingAttempt,
+    RetryPlan,
     describe_attempts,
-    global_mapping,
-    incremental_mapping_with_retries,
-    refine_intrinsics,
+    map_with_retries,
 )
+from .mapping_runs import Refinement, global_mapping
 
 #: Called with one line as each long stage starts (mapping, bundle adjustment).
 StageCallback = Callable[[str], None]
@@ -229,22 +228,24 @@ def map_calibrated(
             database,
             images,
             output,
-            refine["focal_length"] or refine["principal_point"],
+            refine_intrinsics_while_mapping=refine["focal_length"] or refine["principal_point"],
             seed=seed,
             refine_distortion=refine["distortion"],
         )
     else:
-        reconstruction, attempts, seeded = incremental_mapping_with_retries(
+        reconstruction, attempts, seeded = map_with_retries(
             database,
             images,
             output,
-            refine["focal_length"],
-            refine["principal_point"],
+            refine=Refinement(
+                refine["focal_length"], refine["principal_point"], refine["distortion"]
+            ),
+            plan=RetryPlan(
+                candidate_pairs=seed_candidate_pairs(calibrations),
+                known_focal_cameras=focal_estimated_cameras(calibrations),
+            ),
             seed=seed,
             progress=options.progress,
-            candidate_pairs=seed_candidate_pairs(calibrations),
-            known_focal_cameras=focal_estimated_cameras(calibrations),
-            refine_distortion=refine["distortion"],
         )
     mapping: dict[str, Any] = {
         "mapper": options.mapper,

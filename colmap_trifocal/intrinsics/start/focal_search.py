@@ -204,7 +204,9 @@ class _Grid:
             (x[:, :count], focals, self.principal_point, self.threshold_px, *iterations)
             for x in self.subsets
         ]
-        return np.array(map_jobs(_costs_job, jobs, self.workers, "focal search", self.progress))
+        return np.array(
+            map_jobs(_costs_job, jobs, self.workers, "focal search", progress=self.progress)
+        )
 
 
 def search_focal(

@@ -196,7 +196,7 @@ class TensorEstimator:
             jobs,
             self.options.workers,
             f"camera {self.camera_id}: tensors",
-            self.options.progress,
+            progress=self.options.progress,
         )
         for p, fit in zip(missing, fits, strict=True):
             self._cache[(key, p, second_start)] = fit
