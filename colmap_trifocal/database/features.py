@@ -86,21 +86,10 @@ def build_database(  # noqa: PLR0913 (COLMAP's extraction and matching settings,
         raise CalibrationError(f"database already exists: {database}")
     if matcher not in MATCHERS:
         raise CalibrationError(f"unknown matcher {matcher!r} (choose from {MATCHERS})")
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = camera_model
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.max_image_size = max_image_size
-    extraction.num_threads = num_threads
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = num_threads
-    verification = pycolmap.TwoViewGeometryOptions()
-    if seed is not None:
-        verification.ransac.random_seed = seed
-    if camera_mode is not None and camera_mode not in CAMERA_MODES:
-        raise CalibrationError(f"unknown camera mode {camera_mode!r} (choose from {CAMERA_MODES})")
-    if camera_mode is None:
-        camera_mode = "single" if single_camera else "per-image"
-    mode = CAMERA_MODES[camera_mode]
+    mode = _camera_mode(camera_mode, single_camera=single_camera)
+    reader, extraction, matching, verification = _colmap_options(
+        camera_model, max_image_size, num_threads, seed
+    )
     if progress:
         names = image_names or sorted(p.name for p in image_dir.iterdir() if p.is_file())
         _extract_in_chunks(database, image_dir, names, mode, reader, extraction)
@@ -115,6 +104,37 @@ def build_database(  # noqa: PLR0913 (COLMAP's extraction and matching settings,
             device=pycolmap.Device.cpu,
         )
     return database
+
+
+def _camera_mode(camera_mode: str | None, *, single_camera: bool) -> pycolmap.CameraMode:
+    """pycolmap's camera mode: ``camera_mode``, or from ``single_camera`` when None."""
+    if camera_mode is not None and camera_mode not in CAMERA_MODES:
+        raise CalibrationError(f"unknown camera mode {camera_mode!r} (choose from {CAMERA_MODES})")
+    if camera_mode is None:
+        camera_mode = "single" if single_camera else "per-image"
+    return CAMERA_MODES[camera_mode]
+
+
+def _colmap_options(
+    camera_model: str, max_image_size: int, num_threads: int, seed: int | None
+) -> tuple[
+    pycolmap.ImageReaderOptions,
+    pycolmap.FeatureExtractionOptions,
+    pycolmap.FeatureMatchingOptions,
+    pycolmap.TwoViewGeometryOptions,
+]:
+    """pycolmap's reader, extraction, matching and verification options of a build."""
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = camera_model
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.max_image_size = max_image_size
+    extraction.num_threads = num_threads
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = num_threads
+    verification = pycolmap.TwoViewGeometryOptions()
+    if seed is not None:
+        verification.ransac.random_seed = seed
+    return reader, extraction, matching, verification
 
 
 def _extract(

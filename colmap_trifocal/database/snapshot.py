@@ -150,12 +150,7 @@ def _verified_pairs(
         inliers = np.asarray(tvg.inlier_matches).reshape(-1, 2)
         if inliers.shape[0] < 1:
             continue
-        unknown = [i for i in (id1, id2) if i not in contents.image_names]
-        if unknown:
-            raise CalibrationError(
-                f"corrupt database: verified image pair {pair_id} refers to image id "
-                f"{unknown[0]}, which the database does not have: {path}"
-            )
+        _check_pair_images(pair_id, (id1, id2), contents, path)
         if int(tvg.config) in _EXCLUDED_CONFIGS:
             skipped["degenerate"] += 1
             continue
@@ -177,15 +172,36 @@ def _verified_pairs(
         if fundamental is not None:
             contents.fundamentals[(id1, id2)] = fundamental
     if pairs:
-        median = np.median(np.linalg.norm(np.stack(displacements), axis=-1), axis=1)
-        for id1, id2 in np.array(pairs)[median < DUPLICATE_DISPLACEMENT_PX]:
-            skipped["duplicate"] += 1
-            logger.info("images %d and %d look identical (no baseline); pair ignored", id1, id2)
-            del contents.matches[(int(id1), int(id2))]
-            contents.fundamentals.pop((int(id1), int(id2)), None)
+        skipped["duplicate"] += _drop_duplicates(pairs, displacements, contents)
     if skipped["degenerate"]:
         logger.info("ignored %d degenerate or watermark image pairs", skipped["degenerate"])
     return skipped
+
+
+def _check_pair_images(
+    pair_id: int, image_ids: tuple[int, int], contents: DatabaseContents, path: Path
+) -> None:
+    """CalibrationError unless both images of a verified pair are in the database."""
+    unknown = [i for i in image_ids if i not in contents.image_names]
+    if unknown:
+        raise CalibrationError(
+            f"corrupt database: verified image pair {pair_id} refers to image id "
+            f"{unknown[0]}, which the database does not have: {path}"
+        )
+
+
+def _drop_duplicates(
+    pairs: list[Pair], displacements: list[np.ndarray], contents: DatabaseContents
+) -> int:
+    """Remove, in place, the pairs whose sampled matches barely move (median displacement
+    below ``DUPLICATE_DISPLACEMENT_PX``: the same image twice); how many."""
+    median = np.median(np.linalg.norm(np.stack(displacements), axis=-1), axis=1)
+    duplicates = np.array(pairs)[median < DUPLICATE_DISPLACEMENT_PX]
+    for id1, id2 in duplicates:
+        logger.info("images %d and %d look identical (no baseline); pair ignored", id1, id2)
+        del contents.matches[(int(id1), int(id2))]
+        contents.fundamentals.pop((int(id1), int(id2)), None)
+    return len(duplicates)
 
 
 def _rig_sensor_cameras(rigs: list[pycolmap.Rig]) -> set[int]:
