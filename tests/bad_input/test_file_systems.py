@@ -1,0 +1,72 @@
+"""Full disks and file size limits: ``/dev/full``, ``RLIMIT_FSIZE`` in a child process, and
+a small tmpfs where the tests run as root. Nothing is left behind.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+from conftest import CliResult
+
+from bad_input.builders import (
+    copy_good,
+)
+from bad_input.table import (
+    QUICK,
+    Case,
+    check_case,
+    limit_file_size,
+    listing,
+    main_lines,
+    sha256,
+)
+from colmap_trifocal.database import writing as database_module
+
+CASES: dict[str, Case] = {
+    "--json on a full disk": Case(
+        copy_good, "cannot write /dev/full: No space left on device", ("--json", "/dev/full")
+    ),
+    "--json on a full disk with --write": Case(
+        copy_good,
+        "cannot write /dev/full: No space left on device",
+        ("--json", "/dev/full", "--write"),
+    ),
+    "no space for the temporary copy": Case(
+        copy_good, "cannot copy the database to the temporary folder", preexec_fn=limit_file_size()
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_bad_input(
+    name: str,
+    good_database: Path,
+    tmp_path: Path,
+    run_main: Callable[..., CliResult],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    check_case(CASES[name], good_database, tmp_path, run_main, monkeypatch)
+
+
+def test_no_space_for_the_backup(
+    database_copy: Path, monkeypatch: pytest.MonkeyPatch, run_main: Callable[..., CliResult]
+) -> None:
+    """The backup copy fails (ENOSPC): one line, nothing written, the partial .bak removed."""
+    before = sha256(database_copy)
+
+    def full_disk(path: Path, target: Path) -> None:
+        target.write_bytes(path.read_bytes()[:4096])  # a partial copy, then the disk is full
+        raise OSError(28, os.strerror(28), str(target))
+
+    monkeypatch.setattr(database_module, "_copy_database", full_disk)
+    status, lines = main_lines(run_main, "calibrate", database_copy, *QUICK)
+    assert status == 2
+    assert lines == [
+        f"error: cannot back up the database, nothing written: {database_copy} "
+        "(No space left on device)"
+    ]
+    assert sha256(database_copy) == before
+    assert listing(database_copy.parent) == ["database.db"]
