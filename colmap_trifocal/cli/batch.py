@@ -143,7 +143,9 @@ class _Lines:
     def write(self, line: dict) -> None:
         try:
             if self.stream is None:
-                self.stream = sys.stdout if self.path is None else open(self.path, "w")  # noqa: SIM115
+                self.stream = (
+                    sys.stdout if self.path is None else open(self.path, "w", encoding="utf-8")  # noqa: SIM115
+                )
             self.stream.write(json.dumps(line) + "\n")
             self.stream.flush()
         except OSError as exc:

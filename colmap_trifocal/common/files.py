@@ -203,7 +203,7 @@ def write_text_atomically(path: Path, text: str) -> None:
     """
     path = Path(os.path.realpath(path))  # through a symlink, not over it
     if path.exists() and not path.is_file():
-        with path.open("w") as stream:
+        with path.open("w", encoding="utf-8") as stream:
             stream.write(text)
         return
     fd, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -211,7 +211,7 @@ def write_text_atomically(path: Path, text: str) -> None:
         umask = os.umask(0)
         os.umask(umask)
         os.fchmod(fd, 0o666 & ~umask)
-        with os.fdopen(fd, "w") as stream:
+        with os.fdopen(fd, "w", encoding="utf-8") as stream:  # whatever the locale
             stream.write(text)
             stream.flush()
             os.fsync(stream.fileno())
