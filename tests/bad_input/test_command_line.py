@@ -5,11 +5,14 @@ addresses), and flags that do not go together: refused before any work.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+import socket
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
-from conftest import CliResult
+from conftest import CliResult, assert_one_error_line
 
 from bad_input.builders import (
     copy_good,
@@ -146,6 +149,76 @@ CASES: dict[str, Case] = {
         "is a COLMAP model folder",
         argv=lambda f, p, w: ("calibrate", p, f / "sparse" / "0", "--write"),
     ),
+    # ----- issue 37: counts and sizes in ranges; --dask addresses checked before a client
+    "synthetic --runs 10000000000000": Case(
+        copy_good,
+        "--runs must be at most 1000000, got 10000000000000",
+        argv=lambda f, p, w: ("synthetic", "--runs", "10000000000000", "--output", w),
+    ),
+    "synthetic --runs 1e13": Case(
+        copy_good,
+        "--runs: invalid int value: '1e13'",
+        argv=lambda f, p, w: ("synthetic", "--runs", "1e13", "--output", w),
+    ),
+    "synthetic --points 1000000000000": Case(
+        copy_good,
+        "--points must be at most 100000",
+        argv=lambda f, p, w: ("synthetic", "--points", "1000000000000", "--output", w),
+    ),
+    "synthetic --noise 1e300": Case(
+        copy_good,
+        "--noise levels must be at most 100 px, got 1e+300",
+        argv=lambda f, p, w: ("synthetic", "--noise", "0,1e300", "--output", w),
+    ),
+    "synthetic --workers 100000": Case(
+        copy_good,
+        "--workers: must be in [1, 256], got 100000",
+        argv=lambda f, p, w: ("synthetic", "--workers", "100000", "--output", w),
+    ),
+    "synthetic --workers 0": Case(
+        copy_good,
+        "--workers: must be in [1, 256], got 0",
+        argv=lambda f, p, w: ("synthetic", "--workers", "0", "--output", w),
+    ),
+    "evaluate --images 1000000000000": Case(
+        copy_good,
+        "invalid --images '3,1000000000000': values must be in [0, 100000]",
+        argv=lambda f, p, w: (
+            "evaluate",
+            "strecha",
+            f,
+            "--images",
+            "3,1000000000000",
+            "--output",
+            w,
+        ),
+    ),
+    "evaluate --max-image-size 99": Case(
+        copy_good,
+        "--max-image-size: must be in [100,",
+        argv=lambda f, p, w: ("evaluate", "strecha", f, "--max-image-size", "99", "--output", w),
+    ),
+    "--dask ''": Case(copy_good, "--dask '': expected HOST:PORT", ("--dask", "")),
+    "--dask inproc://x": Case(
+        copy_good,
+        "--dask 'inproc://x': the scheme must be one of tcp, tls",
+        ("--dask", "inproc://x"),
+    ),
+    "--dask http://localhost:8786": Case(
+        copy_good, "the scheme must be one of tcp, tls", ("--dask", "http://localhost:8786")
+    ),
+    "--dask tcp://[::1": Case(
+        copy_good, "'tcp://[::1': expected HOST:PORT", ("--dask", "tcp://[::1")
+    ),
+    "--dask ::::": Case(copy_good, "'::::': expected HOST:PORT", ("--dask", "::::")),
+    "--dask tcp://host:99999": Case(
+        copy_good, "port 99999 is not in [1, 65535]", ("--dask", "tcp://host:99999")
+    ),
+    "synthetic --dask tcp://[::1": Case(
+        copy_good,
+        "expected HOST:PORT",
+        argv=lambda f, p, w: ("synthetic", "--dask", "tcp://[::1", "--output", w),
+    ),
 }
 
 
@@ -180,3 +253,57 @@ def test_repeated_camera_id_is_calibrated_once(
     assert [entry["camera_id"] for entry in json.loads(out.read_text())] == [1]
     rows = [line for line in result.stdout.splitlines()[1:] if line.split()[0].isdigit()]
     assert len(rows) == 1  # one camera (its std line follows it)
+
+
+@contextmanager
+def listening(greeting: bytes | None) -> Iterator[int]:
+    """A local TCP server (its port) that accepts connections and sends ``greeting``
+    at once, or (None) answers nothing until it has read a request, as a web server does."""
+    server = socket.create_server(("127.0.0.1", 0))
+    stop = threading.Event()
+
+    def serve() -> None:
+        server.settimeout(0.1)
+        while not stop.is_set():
+            try:
+                connection, _ = server.accept()
+            except TimeoutError:
+                continue
+            with connection:
+                if greeting is not None:
+                    connection.sendall(greeting)
+                stop.wait(5)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        yield server.getsockname()[1]
+    finally:
+        stop.set()
+        thread.join(timeout=10)
+        server.close()
+
+
+@pytest.mark.parametrize(
+    ("greeting", "fragment"),
+    [
+        (None, "no Dask scheduler answered within 0.5 s"),
+        (b"HTTP/1.1 200 OK\r\n\r\n", "is not a Dask scheduler (its first bytes b'HTTP/1.1'"),
+    ],
+    ids=["silent until asked (a web server)", "sends HTTP"],
+)
+def test_dask_address_of_a_server_that_is_no_scheduler(
+    greeting: bytes | None,
+    fragment: str,
+    database_copy: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    run_main: Callable[..., CliResult],
+) -> None:
+    """``--dask`` at a web server's address: one line, nothing else tried (before: Dask
+    read the answer's first bytes as a message length and asked for exbibytes)."""
+    from colmap_trifocal.evaluation import dask_address
+
+    monkeypatch.setattr(dask_address, "PROBE_TIMEOUT_S", 0.5)
+    with listening(greeting) as port:
+        result = run_main("calibrate", database_copy, "--dask", f"tcp://127.0.0.1:{port}")
+    assert_one_error_line(result, fragment)
