@@ -454,7 +454,8 @@ def database_rows(data: Path | bytes) -> dict[str, list[tuple]]:
     try:
         con.deserialize(bytes(raw))
         tables = [r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")]
-        return {t: sorted(con.execute(f'SELECT * FROM "{t}"').fetchall()) for t in tables}
+        quoted = {t: '"' + t.replace('"', '""') + '"' for t in tables}  # any table name
+        return {t: sorted(con.execute(f"SELECT * FROM {quoted[t]}").fetchall()) for t in tables}
     finally:
         con.close()
 

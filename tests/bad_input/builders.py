@@ -526,3 +526,124 @@ def two_copies(folder: Path, good: Path) -> Path:
     """``folder/database.db`` and ``folder/other.db``: two copies of the good database."""
     shutil.copyfile(good, folder / "other.db")
     return copy_good(folder, good)
+
+
+def stored_radial(k1: float) -> Callable[[Path, Path], Path]:
+    """A copy of the good database whose camera is SIMPLE_RADIAL with distortion ``k1``."""
+    fx, _, cx, cy = PARAMS
+    params = np.array([fx, cx, cy, k1], "<f8").tobytes()
+    return blob_edit("UPDATE cameras SET model = 2, params = ?", params)
+
+
+def user_table(sql: str) -> Callable[[Path, Path], Path]:
+    """A copy of the good database with the user's own SQL applied: a table of theirs."""
+
+    def make(folder: Path, good: Path) -> Path:
+        path = copy_good(folder, good)
+        con = sqlite3.connect(path)
+        con.executescript(sql)
+        con.commit()
+        con.close()
+        return path
+
+    return make
+
+
+def utf16_copy(folder: Path, good: Path) -> Path:
+    """The good database dumped into a new one with UTF-16 text (``PRAGMA encoding``)."""
+    path = folder / "database.db"
+    source, target = sqlite3.connect(good), sqlite3.connect(path)
+    target.execute("PRAGMA encoding = 'UTF-16le'")
+    for statement in source.iterdump():
+        if not statement.startswith(("BEGIN", "COMMIT")):
+            target.execute(statement)
+    target.commit()
+    assert target.execute("PRAGMA encoding").fetchone() == ("UTF-16le",)
+    source.close()
+    target.close()
+    return path
+
+
+#: A sparse file's size: far more than memory, nothing on disk.
+SPARSE_BYTES = 60 << 30
+
+
+def sparse_model_file(name: str) -> Callable[[Path, Path], Path]:
+    """A model whose file ``name`` keeps its records and is then extended, sparse, to
+    :data:`SPARSE_BYTES` (zeros that take no disk space)."""
+
+    def make(folder: Path, _good: Path) -> Path:
+        model = make_model(folder)
+        os.truncate(model / name, SPARSE_BYTES)
+        return model
+
+    return make
+
+
+def special_model_file(name: str) -> Callable[[Path, Path], Path]:
+    """A model whose file ``name`` is a FIFO (no writer ever comes)."""
+
+    def make(folder: Path, _good: Path) -> Path:
+        model = make_model(folder)
+        (model / name).unlink()
+        os.mkfifo(model / name)
+        return model
+
+    return make
+
+
+def edited_model(edit: Callable[[pycolmap.Reconstruction], object]) -> Callable[[Path, Path], Path]:
+    """A model read back, changed by ``edit`` and written again (pycolmap writes what it
+    is given: NaN params, a pose at 1e300)."""
+
+    def make(folder: Path, _good: Path) -> Path:
+        model = make_model(folder)
+        reconstruction = pycolmap.Reconstruction(model)
+        edit(reconstruction)
+        reconstruction.write(model)
+        return model
+
+    return make
+
+
+def nan_camera(reconstruction: pycolmap.Reconstruction) -> None:
+    for camera in reconstruction.cameras.values():
+        camera.params = np.array([np.nan, *PARAMS[1:]])
+
+
+def far_pose(reconstruction: pycolmap.Reconstruction) -> None:
+    image = reconstruction.image(min(reconstruction.reg_image_ids()))
+    pose = image.cam_from_world()
+    image.frame.rig_from_world = pycolmap.Rigid3d(pose.rotation, np.array([1e300, 0.0, 0.0]))
+
+
+def far_points(reconstruction: pycolmap.Reconstruction) -> None:
+    for point in reconstruction.points3D.values():
+        point.xyz = np.array([1e300, -1e300, 1e300])
+
+
+def show_png(folder: Path, path: Path, workspace: Path) -> tuple:
+    """``show PATH --png`` into the folder above the row's (so the row's files stay as
+    they were)."""
+    return ("show", path, "--png", folder.parent / "view.png")
+
+
+def good_and_fifo(folder: Path, good: Path) -> Path:
+    """A copy of the good database and ``folder/out``, a FIFO nobody reads."""
+    os.mkfifo(folder / "out")
+    return copy_good(folder, good)
+
+
+def model_and_fifo(folder: Path, _good: Path) -> Path:
+    """A model in ``folder/sparse/0`` and ``folder/out``, a FIFO nobody reads."""
+    os.mkfifo(folder / "out")
+    return make_model(folder)
+
+
+def good_and_socket(folder: Path, good: Path) -> Path:
+    """A copy of the good database and ``folder/out``, a UNIX socket."""
+    import socket
+
+    with socket.socket(socket.AF_UNIX) as sock:
+        sock.bind(str(folder / "out"))
+    return copy_good(folder, good)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import CliResult, run_cli
+from conftest import CliResult, database_rows, run_cli
 
 from bad_input.builders import (
     FIRST_PAIR_ID,
@@ -35,12 +35,18 @@ from bad_input.builders import (
     synthetic_database,
     text_file,
     truncated_sqlite,
+    user_table,
+    utf16_copy,
     without_rows,
 )
 from bad_input.table import (
+    PARAMS,
     PRIOR,
     PRIOR_VALUES,
+    QUICK,
+    QUICK_READ,
     Case,
+    camera_params,
     check_case,
     listing,
     sha256,
@@ -199,3 +205,40 @@ def test_run_copies_what_is_still_in_the_wal(good_database: Path, tmp_path: Path
         copy.close()
     report = json.loads((workspace / "report.json").read_text())
     assert report["num_registered_images"] == 6
+
+
+#: Valid databases that were refused as "truncated or corrupt?" (the snapshot copied every
+#: table with its SQL, unquoted names, into a database of another text encoding).
+VALID_VARIANTS = {
+    'a user table named we"ird': user_table(
+        'CREATE TABLE "we""ird" (x); INSERT INTO "we""ird" VALUES (1);'
+    ),
+    "an FTS5 table": user_table(
+        "CREATE VIRTUAL TABLE notes USING fts5(body); INSERT INTO notes VALUES ('hello');"
+    ),
+    "an R*Tree table": user_table(
+        "CREATE VIRTUAL TABLE boxes USING rtree(id, x0, x1); INSERT INTO boxes VALUES (1, 0, 1);"
+    ),
+    "UTF-16 text": utf16_copy,
+}
+
+
+@pytest.mark.parametrize("variant", list(VALID_VARIANTS))
+def test_valid_database_variants_are_calibrated_and_written(
+    variant: str, good_database: Path, tmp_path: Path, run_main: Callable[..., CliResult]
+) -> None:
+    """A COLMAP database that also holds other tables, or stores text as UTF-16, is read
+    (byte-identical) and written (``--write``: backup of the same rows, the new params)."""
+    path = VALID_VARIANTS[variant](tmp_path, good_database)
+    before, rows = sha256(path), database_rows(path)
+    out = tmp_path / "result.json"
+    result = run_main("calibrate", path, *QUICK_READ, "--json", out)
+    assert (result.returncode, result.stderr) == (0, ""), result.stderr
+    (entry,) = json.loads(out.read_text())
+    np.testing.assert_allclose([entry[k] for k in ("fx", "fy", "cx", "cy")], PARAMS, rtol=1e-4)
+    assert sha256(path) == before
+    result = run_main("calibrate", path, *QUICK)
+    assert (result.returncode, result.stderr) == (0, ""), result.stderr
+    assert "wrote 1 camera(s)" in result.stdout
+    assert database_rows(path.with_name("database.db.bak")) == rows
+    np.testing.assert_allclose(camera_params(path), PARAMS, rtol=1e-4)
