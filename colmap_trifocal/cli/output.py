@@ -18,6 +18,7 @@ from pathlib import Path
 
 from ..common.errors import CalibrationError
 from ..common.files import can_create_in, file_identity, write_text_atomically
+from ..common.streams import descriptor_of, file_kind, is_stream
 
 #: Exit status of a refused input (after one ``error:`` line on stderr).
 EXIT_INPUT_ERROR = 2
@@ -169,9 +170,12 @@ def check_output_file(path: Path, option: str) -> None:
     """
     if is_stdout(path) and stdout_closed():
         raise CalibrationError(f"cannot write {option} {path}: standard output is closed")
+    if descriptor_of(path) is not None:  # /dev/stderr, /dev/fd/63: written through it
+        return
     if path.exists() and not path.is_file():  # a device or a pipe, written directly
-        if path.is_dir() or not os.access(path, os.W_OK):
-            raise CalibrationError(f"cannot write {option}: {path} is not a writable file")
+        kind = file_kind(path.stat().st_mode)
+        if not is_stream(path) or not os.access(path, os.W_OK):
+            raise CalibrationError(f"cannot write {option}: {path} is not a writable file ({kind})")
         return
     folder = Path(os.path.realpath(path)).parent
     if not folder.is_dir():

@@ -5,8 +5,11 @@ input, each is checked before any work, and pipes and FIFOs never block for good
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
+import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -22,6 +25,8 @@ from bad_input.builders import (
     database_in_workspace,
     earlier_demo,
     earlier_demo_workspace,
+    good_and_fifo,
+    good_and_socket,
     images_and_hard_link,
     images_and_link_to_them,
     images_in_sparse,
@@ -30,6 +35,7 @@ from bad_input.builders import (
     link_to_images_in_sparse,
     make_model,
     model_and_database,
+    model_and_fifo,
     model_database_and_empty_output,
     model_database_and_link,
     models_with,
@@ -287,6 +293,32 @@ CASES: dict[str, Case] = {
         "other.db is the database: refusing",
         argv=lambda f, p, w: ("calibrate", f / "*.db", "--json", f / "other.db"),
     ),
+    # ----- issue 37: a FIFO without a reader waits a bounded time (here 0.5 s), then one
+    # line; a socket is no output
+    "--json is a FIFO nobody reads": Case(
+        good_and_fifo,
+        "/data/out: no process opened the FIFO for reading within 0.5 s",
+        argv=lambda f, p, w: ("calibrate", p, *QUICK_READ, "--json", f / "out"),
+        stream_timeout=0.5,
+    ),
+    "--json is a FIFO nobody reads, several inputs": Case(
+        good_and_fifo,
+        "no process opened the FIFO for reading within 0.5 s",
+        argv=lambda f, p, w: ("calibrate", p, p, *QUICK_READ, "--json", f / "out"),
+        stream_timeout=0.5,
+    ),
+    "show --png is a FIFO nobody reads": Case(
+        model_and_fifo,
+        "no process opened the FIFO for reading within 0.5 s",
+        argv=lambda f, p, w: ("show", p, "--png", f / "out"),
+        stream_timeout=0.5,
+        rendering=True,
+    ),
+    "--json is a socket": Case(
+        good_and_socket,
+        "out is not a writable file (a socket)",
+        argv=lambda f, p, w: ("calibrate", p, "--json", f / "out"),
+    ),
 }
 
 
@@ -332,3 +364,104 @@ def test_json_to_stdout_redirected_to_a_file(database_copy: Path, tmp_path: Path
         )
     assert result.returncode == 0, result.stderr
     assert len(_table_and_json(out.read_text(), result.stderr)) == 1
+
+
+def _reading(fd: int, into: list[bytes]) -> threading.Thread:
+    """A thread that reads ``fd`` to its end into ``into`` (the reader of a pipe)."""
+
+    def read() -> None:
+        with os.fdopen(fd, "rb") as stream:
+            into.append(stream.read())
+
+    thread = threading.Thread(target=read, daemon=True)
+    thread.start()
+    return thread
+
+
+def test_json_to_a_pipe_given_as_dev_fd(database_copy: Path) -> None:
+    """``--json >(cat > f)``: the shell gives ``/dev/fd/N``, a pipe; its real path names
+    no file. The JSON goes down the pipe, exit 0 (before: the whole calibration ran, then
+    "cannot write /dev/fd/63", exit 2)."""
+    read_end, write_end = os.pipe()
+    received: list[bytes] = []
+    reader = _reading(read_end, received)
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "colmap_trifocal.cli", "calibrate", str(database_copy)]
+            + [*QUICK_READ, "--json", f"/dev/fd/{write_end}"],
+            capture_output=True,
+            text=True,
+            timeout=300,
+            pass_fds=(write_end,),
+        )
+    finally:
+        os.close(write_end)
+    reader.join(timeout=60)
+    assert (done.returncode, done.stderr) == (0, ""), done.stderr
+    (entry,) = json.loads(received[0])
+    np.testing.assert_allclose([entry[k] for k in ("fx", "fy", "cx", "cy")], PARAMS, rtol=1e-4)
+
+
+def test_json_to_stderr_on_a_pipe(database_copy: Path) -> None:
+    """``--json /dev/stderr`` with stderr a pipe: the JSON on stderr, the table on stdout,
+    exit 0 (before: "cannot write /dev/stderr", exit 2, after the calibration)."""
+    result = run_cli("calibrate", database_copy, *QUICK_READ, "--json", "/dev/stderr")
+    assert result.returncode == 0, result.stderr
+    (entry,) = json.loads(result.stderr)
+    assert entry["camera_id"] == 1
+    assert result.stdout.split()[:2] == ["camera", "model"]
+
+
+def test_json_to_stderr_redirected_to_a_file(database_copy: Path, tmp_path: Path) -> None:
+    """``--json /dev/stderr 2>err.txt``: the JSON is written through descriptor 2, not as
+    a new file renamed over ``err.txt`` (which would cut off what stderr says after it)."""
+    err = tmp_path / "err.txt"
+    with err.open("w") as stream:
+        done = subprocess.run(
+            [sys.executable, "-m", "colmap_trifocal.cli", "calibrate", str(database_copy)]
+            + [*QUICK_READ, "--json", "/dev/stderr"],
+            stdout=subprocess.PIPE,
+            stderr=stream,
+            text=True,
+            timeout=300,
+        )
+        inode = os.fstat(stream.fileno()).st_ino
+    assert done.returncode == 0
+    assert err.stat().st_ino == inode  # the same file, not replaced
+    assert json.loads(err.read_text())[0]["camera_id"] == 1
+
+
+def test_json_to_a_fifo_whose_reader_comes_late(
+    database_copy: Path, tmp_path: Path, run_main: Callable[..., CliResult]
+) -> None:
+    """A FIFO whose reader opens it a second after the calibration has finished: the
+    output waits for it (within the timeout) and the reader gets the whole JSON."""
+    fifo = tmp_path / "out"
+    os.mkfifo(fifo)
+    received: list[bytes] = []
+
+    def read_later() -> None:
+        time.sleep(1.0)
+        received.append(fifo.read_bytes())
+
+    reader = threading.Thread(target=read_later, daemon=True)
+    reader.start()
+    result = run_main("calibrate", database_copy, *QUICK_READ, "--json", fifo)
+    reader.join(timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert json.loads(received[0])[0]["camera_id"] == 1
+
+
+def test_a_reader_that_stops_reading_times_out(tmp_path: Path) -> None:
+    """A pipe whose reader never reads: the write waits at most the timeout, then OSError
+    (the command says it in one line) instead of blocking for good."""
+    from colmap_trifocal.common.streams import StreamOutput
+
+    read_end, write_end = os.pipe()
+    try:
+        with StreamOutput(f"/dev/fd/{write_end}", timeout=0.3) as stream:
+            with pytest.raises(OSError, match="the reader did not read for 0.3 s"):
+                stream.write(b"x" * (4 << 20))  # more than a pipe holds
+    finally:
+        os.close(read_end)
+        os.close(write_end)
