@@ -119,14 +119,42 @@ def registration_colors(count: int) -> np.ndarray:
     return np.stack([np.interp(t, anchors, _COLORMAP[:, c]) for c in range(3)], axis=1)
 
 
+#: The largest coordinate drawn (world units): points beyond are left out of the view,
+#: a camera beyond is refused (1e300 overflowed the view's vectors).
+MAX_COORDINATE = 1e12
+
+
 def _points(reconstruction: pycolmap.Reconstruction) -> tuple[np.ndarray, np.ndarray]:
-    """(n, 3) point positions (world units) and (n, 3) uint8 RGB colours."""
+    """(n, 3) point positions (world units) and (n, 3) uint8 RGB colours; points that are
+    not finite or beyond :data:`MAX_COORDINATE` are left out."""
     points = list(reconstruction.points3D.values())
     if not points:
         return np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
     xyz = np.array([p.xyz for p in points], dtype=float)
     rgb = np.array([p.color for p in points], dtype=np.uint8)
-    return xyz, rgb
+    drawable = np.all(np.abs(xyz) <= MAX_COORDINATE, axis=1)  # NaN compares False
+    return xyz[drawable], rgb[drawable]
+
+
+def _check_drawable(
+    reconstruction: pycolmap.Reconstruction, image_ids: Sequence[int], centres: np.ndarray
+) -> None:
+    """Refuse what no view can frame: a registered image's camera whose params are not
+    finite, or a pose whose centre is not finite or beyond :data:`MAX_COORDINATE` (the
+    view's vectors overflowed to NaN and failed with a TypeError)."""
+    for k, image_id in enumerate(image_ids):
+        camera_id = reconstruction.image(image_id).camera_id
+        params = np.asarray(reconstruction.cameras[camera_id].params, dtype=float)
+        if not np.all(np.isfinite(params)):
+            shown = ", ".join(f"{p:g}" for p in params)
+            raise CalibrationError(
+                f"cannot draw camera {camera_id} of the model: its params ({shown}) are not finite"
+            )
+        if not np.all(np.abs(centres[k]) <= MAX_COORDINATE):
+            raise CalibrationError(
+                f"cannot draw image {image_id} of the model: its pose is not finite or lies "
+                f"beyond {MAX_COORDINATE:g}"
+            )
 
 
 def inlier_mask(xyz: np.ndarray, keep_quantile: float = KEEP_QUANTILE) -> np.ndarray:
@@ -254,7 +282,9 @@ def scene_geometry(
     cloud.colors = o3d.utility.Vector3dVector(rgb[keep].astype(float) / 255.0)
 
     image_ids = sorted(reconstruction.reg_image_ids())
-    world_from_cam, centres = _poses(reconstruction, image_ids)
+    with np.errstate(all="ignore"):  # a pose at 1e300 is refused below, not warned about
+        world_from_cam, centres = _poses(reconstruction, image_ids)
+    _check_drawable(reconstruction, image_ids, centres)
     if frustum_scale is None:
         size = scene_size(xyz[keep], centres)
         frustum_scale = FRUSTUM_FRACTION * size if size > 0 else 1.0

@@ -7,16 +7,24 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+import cv2
 import pytest
-from conftest import CliResult
+from conftest import CliResult, require_rendering
 
 from bad_input.builders import (
     copy_good,
+    edited_model,
+    far_points,
+    far_pose,
     make_model,
     model_of_other_images,
     models_with,
+    nan_camera,
     only_cameras_bin,
     run_database,
+    show_png,
+    sparse_model_file,
+    special_model_file,
     two_image_model,
 )
 from bad_input.table import (
@@ -84,6 +92,40 @@ CASES: dict[str, Case] = {
         "6 of the model's 6 images are not in the database (e.g. other_camera000001_frame",
         argv=lambda f, p, w: ("calibrate", p, "--model", f / "sparse" / "0", "--output", w),
     ),
+    # ----- issue 37: huge (sparse) files are never read whole; FIFOs never opened;
+    # cameras and poses that are not finite are refused where they are drawn
+    "calibrate: 60 GB sparse cameras.bin": Case(
+        sparse_model_file("cameras.bin"), "bytes after the last record): "
+    ),
+    "calibrate: 60 GB sparse images.bin": Case(
+        sparse_model_file("images.bin"), "bytes after the last record): "
+    ),
+    "show: 60 GB sparse cameras.bin": Case(
+        sparse_model_file("cameras.bin"), "corrupt COLMAP model file (", argv=show_png
+    ),
+    "show: 60 GB sparse images.bin": Case(
+        sparse_model_file("images.bin"), "corrupt COLMAP model file (", argv=show_png
+    ),
+    "calibrate: points3D.bin is a FIFO": Case(
+        special_model_file("points3D.bin"), "points3D.bin is not a regular file (a FIFO)"
+    ),
+    "show: frames.bin is a FIFO": Case(
+        special_model_file("frames.bin"), "frames.bin is not a regular file (a FIFO)", argv=show_png
+    ),
+    "show: a camera's params NaN": Case(
+        edited_model(nan_camera),
+        "cannot draw camera 1 of the model: its params (nan,",
+        argv=show_png,
+    ),
+    "show (window): a camera's params NaN": Case(
+        edited_model(nan_camera),
+        "cannot draw camera 1 of the model",
+        argv=lambda f, p, w: ("show", p),
+    ),
+    "calibrate: a camera's params NaN": Case(edited_model(nan_camera), "the stored params (nan,"),
+    "show: an image's pose at 1e300": Case(
+        edited_model(far_pose), "its pose is not finite or lies beyond 1e+12", argv=show_png
+    ),
 }
 
 
@@ -96,3 +138,15 @@ def test_bad_input(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     check_case(CASES[name], good_database, tmp_path, run_main, monkeypatch)
+
+
+def test_show_draws_a_model_whose_points_are_all_at_1e300(
+    good_database: Path, tmp_path: Path, run_main: Callable[..., CliResult]
+) -> None:
+    """Points at 1e300 (all of them) are left out of the view, and the cameras drawn: a
+    PNG, exit 0 (a TypeError before: the view's vectors overflowed to NaN)."""
+    require_rendering()
+    model = edited_model(far_points)(tmp_path, good_database)
+    result = run_main("show", model, "--png", tmp_path / "view.png")
+    assert (result.returncode, result.stderr) == (0, ""), result.stderr
+    assert cv2.imread(str(tmp_path / "view.png")).shape == (960, 1280, 3)
