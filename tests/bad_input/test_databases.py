@@ -31,6 +31,7 @@ from bad_input.builders import (
     other_tool,
     random_consistent_matches,
     random_inconsistent_matches,
+    run_database,
     stored_params,
     synthetic_database,
     text_file,
@@ -132,6 +133,13 @@ CASES: dict[str, Case] = {
     ),
     "a glob pattern that matches nothing": Case(
         lambda f, _: f / "*.sqlite", "no database or model folder matches"
+    ),
+    # ----- issue 37: a refused --database leaves no workspace behind
+    "run --database truncated: no workspace made": Case(
+        truncated_sqlite, "truncated or corrupt", argv=run_database()
+    ),
+    "run --database without images: no workspace made": Case(
+        empty_colmap, "database has no images", argv=run_database()
     ),
     "DATABASE is ., with --json": Case(
         copy_good,
