@@ -33,6 +33,7 @@ from bad_input.builders import (
     random_inconsistent_matches,
     run_database,
     stored_params,
+    stored_radial,
     synthetic_database,
     text_file,
     truncated_sqlite,
@@ -134,6 +135,11 @@ CASES: dict[str, Case] = {
     "a glob pattern that matches nothing": Case(
         lambda f, _: f / "*.sqlite", "no database or model folder matches"
     ),
+    # ----- issue 37: a stored distortion that folds the image over
+    "stored k1 = -1000 (the lens model folds over)": Case(
+        stored_radial(-1000.0), "its stored distortion (k -1000) cannot be undone at"
+    ),
+    "stored k1 = -3": Case(stored_radial(-3.0), "its stored distortion (k -3) cannot be undone"),
     # ----- issue 37: a refused --database leaves no workspace behind
     "run --database truncated: no workspace made": Case(
         truncated_sqlite, "truncated or corrupt", argv=run_database()
