@@ -13,6 +13,8 @@ from conftest import CliResult
 
 from bad_input.builders import (
     copy_good,
+    image_folder,
+    run_image_folder,
 )
 from bad_input.table import (
     QUICK,
@@ -36,6 +38,20 @@ CASES: dict[str, Case] = {
     ),
     "no space for the temporary copy": Case(
         copy_good, "cannot copy the database to the temporary folder", preexec_fn=limit_file_size()
+    ),
+    # ----- issue 37: run and demo on a full file system end in one line and leave nothing
+    # (pycolmap raised RuntimeError: "No registered database factory succeeded")
+    "run onto a full file system": Case(
+        image_folder(lambda _: None, good=3),
+        "cannot build the database ",
+        argv=run_image_folder(),
+        preexec_fn=limit_file_size(),
+    ),
+    "demo --keep onto a full file system": Case(
+        copy_good,
+        "cannot write the demo database ",
+        argv=lambda f, p, w: ("demo", "--keep", w / "new" / "folder"),
+        preexec_fn=limit_file_size(),
     ),
 }
 
