@@ -692,5 +692,10 @@ def show(
         return render_png(geometries, Path(png), width=width, height=height, caption=caption)
     if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         raise CalibrationError("no display: use --png OUT")
+    from .viewer import display_problem
+
+    problem = display_problem()  # a display nobody serves: Open3D would run for ever
+    if problem is not None:
+        raise CalibrationError(f"{problem}: use --png OUT")
     _open3d().visualization.draw_geometries(geometries, window_name=f"colmap-trifocal: {title}")
     return None

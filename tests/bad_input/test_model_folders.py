@@ -32,6 +32,12 @@ from bad_input.table import (
     check_case,
 )
 
+
+def make_model_folder(folder: Path, _good: Path) -> Path:
+    """A good model in ``folder/sparse/0``."""
+    return make_model(folder)
+
+
 CASES: dict[str, Case] = {
     "show: missing model": Case(
         copy_good, "model folder not found", argv=lambda f, p, w: ("show", f / "nope")
@@ -121,6 +127,12 @@ CASES: dict[str, Case] = {
         edited_model(nan_camera),
         "cannot draw camera 1 of the model",
         argv=lambda f, p, w: ("show", p),
+    ),
+    "show (window) on a display nobody serves": Case(
+        make_model_folder,
+        "cannot open the display (DISPLAY=':99')",
+        argv=lambda f, p, w: ("show", p),
+        env={"DISPLAY": ":99", "WAYLAND_DISPLAY": None},
     ),
     "calibrate: a camera's params NaN": Case(edited_model(nan_camera), "the stored params (nan,"),
     "show: an image's pose at 1e300": Case(
