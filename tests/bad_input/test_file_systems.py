@@ -5,11 +5,13 @@ a small tmpfs where the tests run as root. Nothing is left behind.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+import shutil
+import subprocess
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from conftest import CliResult
+from conftest import CliResult, assert_one_error_line, run_cli
 
 from bad_input.builders import (
     copy_good,
@@ -86,3 +88,54 @@ def test_no_space_for_the_backup(
     ]
     assert sha256(database_copy) == before
     assert listing(database_copy.parent) == ["database.db"]
+
+
+# --------------------------------------------------------------------------- a small tmpfs
+
+
+@pytest.fixture
+def small_filesystem(tmp_path: Path) -> Iterator[Callable[[int], Path]]:
+    """Factory: a tmpfs of the given size in KiB, mounted below ``tmp_path`` (root only:
+    skipped where it cannot be mounted), unmounted after the test."""
+    mounted: list[Path] = []
+
+    def mount(size_kib: int) -> Path:
+        point = tmp_path / f"small{len(mounted)}"
+        point.mkdir()
+        done = subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", f"size={size_kib}k", "tmpfs", str(point)],
+            capture_output=True,
+            text=True,
+        )
+        if done.returncode != 0:
+            pytest.skip(f"cannot mount a tmpfs here (root only): {done.stderr.strip()}")
+        mounted.append(point)
+        return point
+
+    yield mount
+    for point in mounted:
+        subprocess.run(["umount", str(point)], check=True)
+
+
+def _fill(folder: Path, leave_kib: int) -> None:
+    """Fill the file system of ``folder`` until ``leave_kib`` KiB are free."""
+    free = shutil.disk_usage(folder).free - (leave_kib << 10)
+    if free > 0:
+        (folder / "filler").write_bytes(b"\0" * free)
+
+
+def test_write_without_room_for_the_backup(
+    good_database: Path, small_filesystem: Callable[[int], Path], tmp_path: Path
+) -> None:
+    """``--write`` on a file system without room for the backup and the write: refused in
+    one line before the calibration, nothing made next to the database (before: the
+    calibration ran, SQLite made -wal and -shm it could not fill, and they were left)."""
+    folder = small_filesystem(1400)
+    database = folder / "database.db"
+    shutil.copyfile(good_database, database)
+    _fill(folder, 20)
+    before = sha256(database)
+    result = run_cli("calibrate", database, *QUICK)
+    assert_one_error_line(result, "no space for a backup of the database and the write")
+    assert result.stdout == ""  # refused before the calibration
+    assert sha256(database) == before and listing(folder) == ["database.db", "filler"]
