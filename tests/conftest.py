@@ -364,15 +364,32 @@ class CliResult:
     stderr: str
 
 
-def run_cli(*args: object, preexec_fn: Callable[[], None] | None = None) -> CliResult:
+def run_cli(
+    *args: object,
+    preexec_fn: Callable[[], None] | None = None,
+    env: dict[str, str | None] | None = None,
+) -> CliResult:
     """``python -m colmap_trifocal.cli ARGS`` as a subprocess (where the process is the point:
-    signals, resource limits, pipes, another process's view)."""
+    signals, resource limits, pipes, the environment, another process's view).
+
+    ``env``: variables set (None: removed) on top of this process's environment. The
+    output is decoded as UTF-8 whatever the child's locale.
+    """
+    environment = dict(os.environ)
+    for key, value in (env or {}).items():
+        if value is None:
+            environment.pop(key, None)
+        else:
+            environment[key] = value
     done = subprocess.run(
         [sys.executable, "-m", "colmap_trifocal.cli", *map(str, args)],
         capture_output=True,
         text=True,
+        encoding="utf-8",
+        errors="backslashreplace",
         timeout=300,
         preexec_fn=preexec_fn,
+        env=environment,
     )
     return CliResult(done.returncode, done.stdout, done.stderr)
 
@@ -437,7 +454,8 @@ def database_rows(data: Path | bytes) -> dict[str, list[tuple]]:
     try:
         con.deserialize(bytes(raw))
         tables = [r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")]
-        return {t: sorted(con.execute(f'SELECT * FROM "{t}"').fetchall()) for t in tables}
+        quoted = {t: '"' + t.replace('"', '""') + '"' for t in tables}  # any table name
+        return {t: sorted(con.execute(f"SELECT * FROM {quoted[t]}").fetchall()) for t in tables}
     finally:
         con.close()
 

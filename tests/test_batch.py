@@ -1,7 +1,7 @@
 """``calibrate`` with several inputs (JSON lines, locally and on a Dask cluster) and with a
 COLMAP model folder (its tracks, beside its own intrinsics).
 
-Bad input of both is in ``test_bad_input.py``'s table.
+Bad input of both is in the bad-input table (``tests/bad_input/``).
 """
 
 from __future__ import annotations

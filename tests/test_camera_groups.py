@@ -406,4 +406,4 @@ def test_calibrate_into_a_copy_of_a_model(
         fx, cx, cy = camera.params[:3]
         np.testing.assert_allclose([fx, fx, cx, cy], TRUTH, rtol=1e-4)
         assert camera.params[3] == pytest.approx(0.05)  # distortion not refined by default
-    # The refusals of --model/--output/--refine are rows of test_bad_input.py.
+    # The refusals of --model/--output/--refine are rows of the bad-input table (tests/bad_input/).

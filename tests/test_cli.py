@@ -1,6 +1,6 @@
 """The command line as a user runs it: exit codes, JSON, --write, the demo, the renderings.
 
-Refused inputs are rows of the table in ``test_bad_input.py``. Here: the installed
+Refused inputs are rows of the bad-input table (``tests/bad_input/``). Here: the installed
 ``colmap-trifocal`` entry point (a real process), the rest in this process
 (``conftest.run_main``).
 """

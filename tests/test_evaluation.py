@@ -123,8 +123,9 @@ def test_synthetic_on_a_dask_cluster_matches_local(tmp_path: Path) -> None:
 @pytest.mark.slow  # the client gives up after its 10 s timeout
 def test_unreachable_dask_scheduler(tmp_path: Path) -> None:
     """No scheduler at the address: one line after the client's 10 s timeout, nothing
-    written. A process (the other bad inputs are rows of ``test_bad_input.py``, in the
-    test process): the failed client must not keep the process from ending."""
+    written. A process (the other bad inputs are rows of the bad-input table,
+    ``tests/bad_input/``, in the test process): the failed client must not keep the process
+    from ending."""
     output = tmp_path / "out"
     result = run_cli("synthetic", "--dask", "tcp://127.0.0.1:9", "--runs", "1", "--output", output)
     assert_one_error_line(result, "cannot connect to the Dask scheduler tcp://127.0.0.1:9")

@@ -1,7 +1,8 @@
 """``run``'s image folder and workspace where the process or the whole run is the point.
 
-The refused inputs are rows of ``test_bad_input.py``. Here: which files the image check
-keeps (formats COLMAP converts, every truncation point of each format), a run that skips
+The refused inputs are rows of the bad-input table (``tests/bad_input/``). Here: which files
+the image check keeps (formats COLMAP converts, every truncation point of each format), a run
+that skips
 unusable files and goes on, a non-UTF-8 name in other locales (a subprocess: the locale is
 the process's), and two runs on one workspace at once.
 """

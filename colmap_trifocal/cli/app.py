@@ -14,7 +14,7 @@ import warnings
 from .. import __version__
 from ..common.errors import CalibrationError
 from . import calibrate, demo, evaluate, run, show, synthetic
-from .output import EXIT_INPUT_ERROR, one_line, standard_streams
+from .output import EXIT_INPUT_ERROR, one_line, say_error, standard_streams
 from .signals import glog_cannot_take_sigterm, report_interrupted, watching_signals
 
 #: The commands in the order ``--help`` lists them: each module has ``add_parser`` and ``run``.
@@ -130,13 +130,13 @@ def main(argv: list[str] | None = None) -> int:
         except CalibrationError as exc:
             if watch.received:
                 return report_interrupted(exc, watch.signum)
-            print(one_line(f"error: {exc}"), file=sys.stderr)
+            say_error(f"error: {exc}")
             return EXIT_INPUT_ERROR
         except OSError as exc:
             if watch.received:
                 return report_interrupted(exc, watch.signum)
             where = f": {exc.filename}" if exc.filename is not None else ""
-            print(one_line(f"error: {exc.strerror or exc}{where}"), file=sys.stderr)
+            say_error(f"error: {exc.strerror or exc}{where}")
             return EXIT_INPUT_ERROR
         except Exception as exc:
             if watch.received:

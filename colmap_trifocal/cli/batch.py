@@ -18,6 +18,7 @@ import dataclasses
 import glob
 import json
 import os
+import stat
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
@@ -26,6 +27,7 @@ from tqdm import tqdm
 
 from ..common.errors import CalibrationError
 from ..common.files import Input, Output, refuse_outputs_over_inputs
+from ..common.streams import StreamOutput, descriptor_of, is_stream
 from .calibrate_model import model_copy_flags
 from .output import check_output_file, is_stdout, one_line
 
@@ -132,6 +134,7 @@ class _Lines:
     def __init__(self, path: Path | None):
         self.path = path
         self.stream: TextIO | None = None
+        self.special: StreamOutput | None = None  # a pipe, FIFO or device: never blocks
 
     def __enter__(self) -> _Lines:
         return self
@@ -139,13 +142,26 @@ class _Lines:
     def __exit__(self, *_: object) -> None:
         if self.stream is not None and self.path is not None:
             self.stream.close()
+        if self.special is not None:
+            self.special.close()
 
     def write(self, line: dict) -> None:
+        text = json.dumps(line) + "\n"
         try:
-            if self.stream is None:
-                self.stream = sys.stdout if self.path is None else open(self.path, "w")  # noqa: SIM115
-            self.stream.write(json.dumps(line) + "\n")
-            self.stream.flush()
+            if self.path is not None and self.stream is None and self.special is None:
+                fd = descriptor_of(self.path)
+                if fd is not None and stat.S_ISREG(os.fstat(fd).st_mode):  # 2>err.txt
+                    self.stream = os.fdopen(os.dup(fd), "w", encoding="utf-8")
+                elif fd is not None or is_stream(self.path):
+                    self.special = StreamOutput(self.path).open()
+                else:
+                    self.stream = open(self.path, "w", encoding="utf-8")  # noqa: SIM115
+            if self.special is not None:
+                self.special.write(text.encode("utf-8"))
+                return
+            stream = sys.stdout if self.stream is None else self.stream
+            stream.write(text)
+            stream.flush()
         except OSError as exc:
             where = "standard output" if self.path is None else self.path
             raise CalibrationError(f"cannot write {where}: {exc.strerror or exc}") from None

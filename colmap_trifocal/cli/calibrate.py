@@ -151,9 +151,9 @@ def run(args: argparse.Namespace) -> int:
     from .batch_input import check_input_path, is_model_folder
 
     if args.dask is not None:
-        from ..common.extras import require_extra
+        from .experiments import check_dask_flag
 
-        require_extra("distributed", "--dask")
+        check_dask_flag(args.dask)
     options = _options(args)
     if args.max_triplets < 1:
         raise CalibrationError("--max-triplets must be at least 1")

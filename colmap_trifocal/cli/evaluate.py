@@ -10,8 +10,22 @@ import sys
 import time
 from pathlib import Path
 
+from ..common.arguments import integer_in
 from ..common.errors import CalibrationError
-from .experiments import add_common_flags, check_outputs, dataset_inputs, finish, methods, numbers
+from .experiments import (
+    MAX_RUNS,
+    add_common_flags,
+    check_outputs,
+    dataset_inputs,
+    finish,
+    methods,
+    numbers,
+)
+
+#: The longest sequence ``--images`` takes (1e12 images asked for terabytes before).
+MAX_IMAGES = 100_000
+#: The largest ``--max-image-size`` (pixels of the longest side SIFT sees).
+MAX_IMAGE_SIZE = 32_768
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -35,11 +49,14 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help=f"comma-separated, from {','.join(EVALUATION_METHODS)} (mapping is slow)",
     )
     parser.add_argument(
-        "--mapping-runs", type=int, default=3, help="runs of the mapping baseline (default 3)"
+        "--mapping-runs",
+        type=integer_in(0, MAX_RUNS),
+        default=3,
+        help="runs of the mapping baseline (default 3)",
     )
     parser.add_argument(
         "--max-image-size",
-        type=int,
+        type=integer_in(100, MAX_IMAGE_SIZE),
         default=1600,
         help="longest image side for SIFT, in pixels (default 1600)",
     )
@@ -64,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         lambda: dataset_inputs({"PATH": args.path, "--cache": args.cache}, "evaluation"),
     )
     options = EvaluationOptions(
-        image_counts=tuple(numbers(args.images, "--images", int)),
+        image_counts=tuple(numbers(args.images, "--images", int, (0, MAX_IMAGES))),
         perturbations=_ranges(args.perturbation),
         runs=args.runs,
         mapping_runs=args.mapping_runs,

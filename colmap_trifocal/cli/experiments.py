@@ -13,7 +13,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..common.arguments import seed
+from ..common.arguments import integer_in, seed
 from ..common.errors import CalibrationError
 from ..common.extras import require_extra
 from ..common.files import Input, Output, refuse_outputs_over_inputs, write_text_atomically
@@ -21,6 +21,24 @@ from .output import check_output_file, check_output_folder
 
 if TYPE_CHECKING:
     from ..evaluation.records import RunRecord
+
+
+#: The most runs per case ``--runs`` takes: a sweep's size, not a typo's (1e13 runs asked
+#: for petabytes of seeds before).
+MAX_RUNS = 1_000_000
+#: The most local processes ``--workers`` starts.
+MAX_WORKERS = 256
+
+
+def check_dask_flag(address: str) -> None:
+    """``--dask ADDRESS``: well-formed (one line otherwise, before Dask raises ValueError
+    or allocates what a web server's first bytes say), Dask installed, and a Dask
+    scheduler answering there (:mod:`..evaluation.dask_address`)."""
+    from ..evaluation.dask_address import check_dask_address, parse_dask_address
+
+    parse_dask_address(address)
+    require_extra("distributed", "--dask")
+    check_dask_address(address)
 
 
 def add_common_flags(parser: argparse.ArgumentParser, stem: str) -> None:
@@ -35,12 +53,19 @@ def add_common_flags(parser: argparse.ArgumentParser, stem: str) -> None:
         help=f"folder for {stem}.csv, {stem}.md and {stem}.png (default ./{stem})",
     )
     parser.add_argument("--json", type=Path, metavar="OUT", help="write every run as JSON")
-    parser.add_argument("--workers", type=int, help="local processes (default: one per core)")
+    parser.add_argument(
+        "--workers",
+        type=integer_in(1, MAX_WORKERS),
+        help="local processes (default: one per core)",
+    )
     parser.add_argument("--dask", metavar="ADDRESS", help="run on this Dask scheduler instead")
 
 
-def numbers(text: str, name: str, kind: type = float) -> list:
-    """Comma-separated finite numbers of type ``kind`` (CalibrationError otherwise)."""
+def numbers(
+    text: str, name: str, kind: type = float, bounds: tuple[float, float] | None = None
+) -> list:
+    """Comma-separated finite numbers of type ``kind``, each within ``bounds`` if given
+    (CalibrationError otherwise)."""
     try:
         values = [kind(p) for p in text.split(",") if p.strip()]
     except ValueError:
@@ -51,6 +76,9 @@ def numbers(text: str, name: str, kind: type = float) -> list:
         raise CalibrationError(f"{name} is empty")
     if not all(math.isfinite(v) for v in values):
         raise CalibrationError(f"invalid {name} {text!r}: values must be finite")
+    if bounds is not None and not all(bounds[0] <= v <= bounds[1] for v in values):
+        low, high = bounds
+        raise CalibrationError(f"invalid {name} {text!r}: values must be in [{low}, {high}]")
     return values
 
 
@@ -70,11 +98,13 @@ def check_outputs(
 ) -> None:
     """``--runs``, and the outputs: writable, and none of them a file of the inputs
     (listed by ``inputs`` only when an output exists already)."""
-    if args.dask is not None:
-        require_extra("distributed", "--dask")
-    require_extra("matplotlib", stem)  # the plot is one of the outputs
     if args.runs < 1:
         raise CalibrationError("--runs must be at least 1")
+    if args.runs > MAX_RUNS:
+        raise CalibrationError(f"--runs must be at most {MAX_RUNS}, got {args.runs}")
+    if args.dask is not None:
+        check_dask_flag(args.dask)
+    require_extra("matplotlib", stem)  # the plot is one of the outputs
     check_output_folder(args.output, "--output")
     outputs = [Output("--output", args.output / f"{stem}.{ext}") for ext in ("csv", "md", "png")]
     if args.json is not None:

@@ -7,8 +7,10 @@ else on stderr.
 
 from __future__ import annotations
 
+import codecs
 import contextlib
 import ctypes
+import io
 import os
 import sys
 from collections.abc import Iterator
@@ -16,6 +18,7 @@ from pathlib import Path
 
 from ..common.errors import CalibrationError
 from ..common.files import can_create_in, file_identity, write_text_atomically
+from ..common.streams import descriptor_of, file_kind, is_stream
 
 #: Exit status of a refused input (after one ``error:`` line on stderr).
 EXIT_INPUT_ERROR = 2
@@ -29,10 +32,78 @@ def one_line(text: str) -> str:
     return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
+def say_error(line: str) -> None:
+    """Print ``line`` (one ``error: ...`` line) on stderr; a stderr that cannot take it
+    (``2>/dev/full``, a closed pipe) loses the line, not the exit status: the command's
+    status is what the caller learns then."""
+    try:
+        print(one_line(line), file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        _drop_pending(sys.stderr)
+
+
+def _drop_pending(stream: object) -> None:
+    """Forget what ``stream`` could not write, so that flushing it at exit does not fail
+    again (and turn the status into 120): its buffer is replaced by ``/dev/null``'s."""
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, stream.fileno())  # type: ignore[attr-defined]
+        os.close(fd)
+        stream.flush()  # type: ignore[attr-defined]
+    except (OSError, ValueError, AttributeError):
+        pass
+
+
 def warn(message: str) -> None:
     """A ``warning: ...`` line on stderr (a result the user should look at); control
     characters escaped, so that it stays one line."""
     print(one_line(f"warning: {message}"), file=sys.stderr)
+
+
+#: What a standard stream whose encoding lacks a character writes instead (``LC_ALL=C
+#: PYTHONUTF8=0``, ``PYTHONIOENCODING=ascii``); any other character is escaped (``\\xe9``).
+_PLAIN = {
+    "\u00b1": "+/-",
+    "\u00b7": "*",
+    "\u00d7": "x",
+    "\u00b0": " deg",
+    "\u2013": "-",
+    "\u2014": "-",
+    "\u2026": "...",
+    "\u2192": "->",
+    "\u2212": "-",
+}
+_PLAIN_ERRORS = "colmap_trifocal_plain"
+
+
+def _plain_replacement(exc: UnicodeError) -> tuple[str | bytes, int]:
+    """Codec error handler: a character the encoding lacks, spelled plainly; a byte of an
+    undecodable file name (a lone surrogate) written back as that byte (surrogateescape)."""
+    if not isinstance(exc, UnicodeEncodeError):
+        raise exc
+    char = exc.object[exc.start]
+    if "\udc80" <= char <= "\udcff":
+        return bytes([ord(char) - 0xDC00]), exc.start + 1
+    return _PLAIN.get(char, char.encode("ascii", "backslashreplace").decode()), exc.start + 1
+
+
+codecs.register_error(_PLAIN_ERRORS, _plain_replacement)
+
+
+def encodable_streams() -> None:
+    """Standard output and error that can print every table and message whatever the
+    locale: where their encoding cannot encode ``±`` (an ASCII locale), a character they
+    lack is spelled plainly (``+/-``) instead of raising UnicodeEncodeError mid-table
+    (which ended the command before ``--write`` wrote anything)."""
+    for stream in (sys.stdout, sys.stderr):
+        if not isinstance(stream, io.TextIOWrapper):  # captured, or a replaced stream
+            continue
+        try:
+            "\u00b1\u00b7".encode(stream.encoding)
+        except UnicodeEncodeError:
+            stream.reconfigure(errors=_PLAIN_ERRORS)
+        except LookupError:
+            continue
 
 
 @contextlib.contextmanager
@@ -61,6 +132,7 @@ def standard_streams() -> Iterator[None]:
             replaced[name] = open(os.devnull, mode)  # closed when the block ends
             setattr(sys, name, replaced[name])
     _CLOSED.update(replaced)
+    encodable_streams()
     try:
         yield
     finally:
@@ -98,9 +170,12 @@ def check_output_file(path: Path, option: str) -> None:
     """
     if is_stdout(path) and stdout_closed():
         raise CalibrationError(f"cannot write {option} {path}: standard output is closed")
+    if descriptor_of(path) is not None:  # /dev/stderr, /dev/fd/63: written through it
+        return
     if path.exists() and not path.is_file():  # a device or a pipe, written directly
-        if path.is_dir() or not os.access(path, os.W_OK):
-            raise CalibrationError(f"cannot write {option}: {path} is not a writable file")
+        kind = file_kind(path.stat().st_mode)
+        if not is_stream(path) or not os.access(path, os.W_OK):
+            raise CalibrationError(f"cannot write {option}: {path} is not a writable file ({kind})")
         return
     folder = Path(os.path.realpath(path)).parent
     if not folder.is_dir():

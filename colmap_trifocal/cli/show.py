@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from ..common.files import Input, Output, refuse_outputs_over_inputs
-from .output import check_output_file, native_output_silenced
+from .output import check_output_file, native_output_silenced, warn
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -25,11 +25,14 @@ def run(args: argparse.Namespace) -> int:
 
     require_extra("open3d", "show")
     if args.png is None:
-        show(args.model, None)  # an interactive window
+        show(args.model, None, warn=warn)  # an interactive window
         return 0
     check_output_file(args.png, "--png")
     refuse_outputs_over_inputs([Output("--png", args.png)], [Input.folder(args.model, "MODEL")])
+    problems: list[str] = []  # said after the block: its stderr is /dev/null
     with native_output_silenced(args.verbosity):
-        written = show(args.model, args.png)
+        written = show(args.model, args.png, warn=problems.append)
+    for problem in problems:
+        warn(problem)
     print(f"wrote {written}")
     return 0

@@ -10,14 +10,13 @@ background job's SIGINT) stays ignored.
 from __future__ import annotations
 
 import signal
-import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
 from ..common.errors import TERMINATING_SIGNALS
-from .output import one_line
+from .output import say_error
 
 
 class InterruptWatch:
@@ -95,5 +94,5 @@ def report_interrupted(exc: BaseException, signum: int | None = None) -> int:
     word = "interrupted" if signum == signal.SIGINT else "terminated"
     if signum == signal.SIGHUP:
         detail = f" (hangup){detail}"
-    print(one_line(f"error: {word}{detail}"), file=sys.stderr)
+    say_error(f"error: {word}{detail}")
     return 128 + int(signum)

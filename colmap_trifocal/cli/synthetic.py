@@ -10,6 +10,11 @@ from ..common.arguments import finite_float
 from ..common.errors import CalibrationError
 from .experiments import add_common_flags, check_outputs, finish, methods, numbers
 
+#: The most tracks a synthetic scene takes (1e12 asked for terabytes before).
+MAX_POINTS = 100_000
+#: The largest pixel noise level: beyond it the images are noise (1e300 overflowed).
+MAX_NOISE_PX = 100.0
+
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
     """``synthetic``: noise levels, runs, points, prior perturbation, outliers, methods."""
@@ -44,10 +49,16 @@ def run(args: argparse.Namespace) -> int:
     noise_levels = numbers(args.noise, "--noise")
     if min(noise_levels) < 0:
         raise CalibrationError("--noise levels must be >= 0")
+    if max(noise_levels) > MAX_NOISE_PX:
+        raise CalibrationError(
+            f"--noise levels must be at most {MAX_NOISE_PX:g} px, got {max(noise_levels):g}"
+        )
     if not 0 <= args.perturbation < 100:
         raise CalibrationError("--perturbation must be in [0, 100) percent")
     if args.points < 10:
         raise CalibrationError("--points must be at least 10")
+    if args.points > MAX_POINTS:
+        raise CalibrationError(f"--points must be at most {MAX_POINTS}, got {args.points}")
     if not 0 <= args.outliers < 1:
         raise CalibrationError("--outliers must be in [0, 1)")
     chosen = methods(args.methods, (*SYNTHETIC_METHODS, "msac"))

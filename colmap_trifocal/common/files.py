@@ -196,22 +196,23 @@ def write_text_atomically(path: Path, text: str) -> None:
 
     A regular (or new) file is written to a temporary file in the same folder, flushed
     to disk and renamed over ``path``; on any error the temporary file is removed and
-    ``path`` is as before. Anything else (``/dev/stdout``, a pipe) is written directly.
+    ``path`` is as before. Anything else (``/dev/stdout``, a pipe, a FIFO: see
+    :func:`.streams.write_special`) is written directly, never blocking for good.
 
     Raises:
         OSError: the file could not be written (no space, no permission, ...).
     """
-    path = Path(os.path.realpath(path))  # through a symlink, not over it
-    if path.exists() and not path.is_file():
-        with path.open("w") as stream:
-            stream.write(text)
+    from .streams import write_special
+
+    if write_special(path, text.encode("utf-8")):  # a pipe, a FIFO, /dev/stderr, ...
         return
+    path = Path(os.path.realpath(path))  # through a symlink, not over it
     fd, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         umask = os.umask(0)
         os.umask(umask)
         os.fchmod(fd, 0o666 & ~umask)
-        with os.fdopen(fd, "w") as stream:
+        with os.fdopen(fd, "w", encoding="utf-8") as stream:  # whatever the locale
             stream.write(text)
             stream.flush()
             os.fsync(stream.fileno())

@@ -226,10 +226,52 @@ def undistort_to_pinhole(camera: CameraInfo, xy: np.ndarray) -> np.ndarray:
         (n, 2) float64 pixel coordinates ``K * cam_from_img(xy)``. For pinhole models and
         cameras whose distortion parameters are all 0 this is a float64 copy of ``xy``.
         Points that pycolmap cannot undistort come back as NaN.
+
+    Raises:
+        CalibrationError: more than :data:`MAX_UNDONE_FRACTION` of the points cannot be
+            undistorted: the stored distortion folds the image over (k1 = -3, -1000), and
+            the keypoints left would fail deep in the tensor fit (SVD did not converge).
     """
     pts = np.array(xy, dtype=np.float64, copy=True).reshape(-1, 2)
     if camera.model in PINHOLE_MODELS or camera.is_undistorted or pts.shape[0] == 0:
         return pts
-    normalised = np.asarray(camera.to_pycolmap().cam_from_img(np.ascontiguousarray(pts)))
+    pycolmap_camera = camera.to_pycolmap()
+    with np.errstate(all="ignore"):
+        normalised = np.asarray(pycolmap_camera.cam_from_img(np.ascontiguousarray(pts)))
+        failed = int(np.count_nonzero(~_undone(pycolmap_camera, camera, pts, normalised)))
+    if failed > MAX_UNDONE_FRACTION * len(pts):
+        extra = np.asarray(pycolmap_camera.params)[list(pycolmap_camera.extra_params_idxs())]
+        shown = ", ".join(f"{v:g}" for v in extra)
+        raise CalibrationError(
+            f"camera {camera.camera_id}: its stored distortion (k {shown}) cannot be undone at "
+            f"{failed} of {len(pts)} keypoints of an image (the lens model folds over there); "
+            "store a camera without that distortion, or give --prior"
+        )
     fx, fy, cx, cy = camera.intrinsics
     return normalised * np.array([fx, fy]) + np.array([cx, cy])
+
+
+def _undone(
+    pycolmap_camera: pycolmap.Camera, camera: CameraInfo, pts: np.ndarray, normalised: np.ndarray
+) -> np.ndarray:
+    """(n,) bool: ``normalised`` really undoes the distortion at ``pts``: finite, mapped
+    back to the pixel, on the pixel's side of the principal point, and on the rising
+    branch of the lens model (a point a little further out maps further out). A lens
+    model that folds over has other solutions that map back exactly (k1 = -1000)."""
+    fx, fy, cx, cy = camera.intrinsics
+    pinhole = (pts - np.array([cx, cy])) / np.array([fx, fy])
+    rays = np.hstack([normalised, np.ones((len(pts), 1))])
+    again = np.asarray(pycolmap_camera.img_from_cam(rays, check_cheirality=False))
+    further = np.hstack([normalised * 1.001, np.ones((len(pts), 1))])
+    beyond = np.asarray(pycolmap_camera.img_from_cam(further, check_cheirality=False))
+    centre = np.array([cx, cy])
+    back = np.linalg.norm(again - pts, axis=1) <= 1.0
+    near_centre = np.linalg.norm(pinhole, axis=1) < 1e-3
+    same_side = np.sum(normalised * pinhole, axis=1) > 0
+    rising = np.linalg.norm(beyond - centre, axis=1) >= np.linalg.norm(again - centre, axis=1)
+    return back & (near_centre | (same_side & rising))
+
+
+#: The largest share of an image's keypoints the stored distortion may fail to undo (the
+#: rest are NaN and dropped); beyond it the camera is refused.
+MAX_UNDONE_FRACTION = 0.1

@@ -35,7 +35,7 @@ import pycolmap
 from ..common.errors import CalibrationError
 from ..common.log import logger
 from .cameras import CameraInfo
-from .model_files import check_binary_model
+from .model_files import check_binary_model, check_regular_files
 from .snapshot import MIN_IMAGES, DatabaseContents
 
 #: Files a COLMAP model folder has, each as ``.bin`` or ``.txt``.
@@ -64,6 +64,7 @@ def read_reconstruction(path: Path | str) -> pycolmap.Reconstruction:
     path = Path(path)
     if not path.is_dir():
         raise CalibrationError(f"model folder not found: {path}")
+    check_regular_files(path)
     missing = [
         name
         for name in MODEL_FILES

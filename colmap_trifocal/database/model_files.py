@@ -19,7 +19,12 @@ for the cameras and images, whose counts are small, and checked as a whole for t
 
 from __future__ import annotations
 
+import contextlib
+import mmap
+import os
+import stat
 import struct
+from collections.abc import Iterator
 from functools import cache
 from pathlib import Path
 
@@ -27,6 +32,14 @@ import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
+from ..common.streams import file_kind
+
+#: Every file of a model folder pycolmap may open (a FIFO among them blocked it for good).
+_MODEL_FILE_NAMES = tuple(
+    f"{name}.{ext}"
+    for name in ("cameras", "images", "points3D", "rigs", "frames")
+    for ext in ("bin", "txt")
+)
 
 _COUNT = struct.Struct("<Q")
 _CAMERA = struct.Struct("<IiQQ")
@@ -47,14 +60,30 @@ def _num_params(model_id: int) -> int | None:
         return None
 
 
-def _count(data: bytes, path: Path) -> int:
+def _count(data: bytes | mmap.mmap, path: Path) -> int:
     if len(data) < _COUNT.size:
         raise CalibrationError(f"truncated COLMAP model file ({len(data)} bytes): {path}")
     return _COUNT.unpack_from(data)[0]
 
 
+@contextlib.contextmanager
+def _mapped(path: Path) -> Iterator[bytes | mmap.mmap]:
+    """The file's bytes, mapped rather than read: a huge (or sparse, 60 GB) file costs
+    address space only, and the walk touches its first records alone."""
+    with path.open("rb") as stream:
+        if os.fstat(stream.fileno()).st_size == 0:
+            yield b""
+            return
+        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            yield data
+
+
 def _check_cameras(path: Path) -> None:
-    data = path.read_bytes()
+    with _mapped(path) as data:
+        _walk_cameras(data, path)
+
+
+def _walk_cameras(data: bytes | mmap.mmap, path: Path) -> None:
     offset, count = _COUNT.size, _count(data, path)
     if count * (_CAMERA.size + 8) > len(data):
         raise CalibrationError(f"truncated COLMAP model file ({count} cameras): {path}")
@@ -71,7 +100,11 @@ def _check_cameras(path: Path) -> None:
 
 def _check_images(path: Path) -> int:
     """Walk ``images.bin``; the number of observations (point2Ds with a 3D point)."""
-    data = path.read_bytes()
+    with _mapped(path) as data:
+        return _walk_images(data, path)
+
+
+def _walk_images(data: bytes | mmap.mmap, path: Path) -> int:
     offset, count = _COUNT.size, _count(data, path)
     if count * (_IMAGE_HEAD + 1 + _COUNT.size) > len(data):
         raise CalibrationError(f"truncated COLMAP model file ({count} images): {path}")
@@ -85,7 +118,8 @@ def _check_images(path: Path) -> int:
         offset += _COUNT.size
         if num_points > (len(data) - offset) // _POINT2D_BYTES:
             raise CalibrationError(f"truncated COLMAP model file: {path}")
-        ids = np.frombuffer(data, "<u8", count=3 * num_points, offset=offset)[2::3]
+        points = data[offset : offset + _POINT2D_BYTES * num_points]  # a copy: no export
+        ids = np.frombuffer(points, "<u8", count=3 * num_points)[2::3]
         observations += int(np.count_nonzero(ids != _NO_POINT3D))
         offset += _POINT2D_BYTES * num_points
     _check_end(offset, len(data), path)
@@ -111,17 +145,33 @@ def _check_end(offset: int, size: int, path: Path) -> None:
         )
 
 
+def check_regular_files(folder: Path) -> None:
+    """Refuse a model folder where a file pycolmap opens is not a regular file (a FIFO
+    blocked the read for good, a folder failed deep inside)."""
+    for name in _MODEL_FILE_NAMES:
+        try:
+            mode = os.stat(Path(folder) / name).st_mode
+        except OSError:
+            continue
+        if not stat.S_ISREG(mode):
+            raise CalibrationError(
+                f"cannot read the COLMAP model in {folder}: {name} is not a regular file "
+                f"({file_kind(mode)})"
+            )
+
+
 def check_binary_model(folder: Path) -> None:
     """Check a model folder's ``cameras.bin``, ``images.bin`` and ``points3D.bin``.
 
     Does nothing when the folder has no complete set of ``.bin`` files (a text model,
-    which pycolmap reads line by line). Reads the cameras and images files (small) and
-    only the header of the points file.
+    which pycolmap reads line by line). Walks the cameras and images files (mapped, not
+    read: only their records are touched) and reads only the header of the points file.
 
     Raises:
         CalibrationError: a file is shorter or longer than its counts say, or unreadable.
     """
     folder = Path(folder)
+    check_regular_files(folder)
     files = {name: folder / f"{name}.bin" for name in ("cameras", "images", "points3D")}
     if not all(path.is_file() for path in files.values()):
         return

@@ -222,21 +222,51 @@ def _copy(source: str, target: Path, without_blobs: frozenset[str], path: Path) 
 def _copy_tables(
     out: sqlite3.Connection, source: str, without_blobs: frozenset[str], path: Path
 ) -> None:
-    """Create the source's tables and indexes in ``out`` and fill them, in one transaction."""
+    """Create the source's tables and indexes in ``out`` and fill them, in one transaction.
+
+    Every name is quoted (a user's table may be called ``we"ird``); virtual tables (FTS5,
+    R*Tree) and their shadow tables are left out: COLMAP has none, and creating a shadow
+    table before its virtual table fails. ``out`` takes the source's text encoding (an
+    attached database must have the main one's)."""
+    _same_encoding(out, source)
     out.execute("ATTACH DATABASE ? AS source", (source,))
     check_tables(out, path, "source")
+    plain = {
+        name
+        for _, name, kind, *_ in out.execute("PRAGMA source.table_list")
+        if kind == "table" and not name.startswith("sqlite_")
+    }
     out.execute("BEGIN")
     schema = out.execute(
-        "SELECT type, name, sql FROM source.sqlite_master WHERE sql IS NOT NULL "
+        "SELECT type, name, tbl_name, sql FROM source.sqlite_master WHERE sql IS NOT NULL "
         "AND name NOT LIKE 'sqlite_%' AND type IN ('table', 'index') ORDER BY type = 'index'"
     ).fetchall()
-    for kind, name, sql in schema:
+    for kind, name, table, sql in schema:
+        if table not in plain:
+            continue
         out.execute(sql)
         if kind == "table":
             columns = _columns(out, name, without_blobs)
-            out.execute(f'INSERT INTO main."{name}" SELECT {columns} FROM source."{name}"')
+            quoted = quote_name(name)
+            out.execute(f"INSERT INTO main.{quoted} SELECT {columns} FROM source.{quoted}")
     out.execute("COMMIT")
     out.execute("DETACH DATABASE source")
+
+
+def quote_name(name: str) -> str:
+    """``name`` as an SQL identifier, whatever characters it holds."""
+    return '"' + name.replace('"', '""') + '"'
+
+
+def _same_encoding(out: sqlite3.Connection, source: str) -> None:
+    """Give the new, empty database ``out`` the text encoding of the database at ``source``."""
+    reader = sqlite3.connect(source, uri=True, timeout=_LOCK_TIMEOUT_S, isolation_level=None)
+    try:
+        (encoding,) = reader.execute("PRAGMA encoding").fetchone()
+    finally:
+        reader.close()
+    if encoding in ("UTF-8", "UTF-16le", "UTF-16be"):
+        out.execute(f"PRAGMA main.encoding = '{encoding}'")
 
 
 def _columns(con: sqlite3.Connection, table: str, without_blobs: frozenset[str]) -> str:
@@ -244,7 +274,7 @@ def _columns(con: sqlite3.Connection, table: str, without_blobs: frozenset[str])
     if table not in without_blobs:
         return "*"
     names = [
-        "zeroblob(0)" if kind.upper() == "BLOB" else f'"{name}"'
-        for _, name, kind, *_ in con.execute(f'PRAGMA source.table_info("{table}")')
+        "zeroblob(0)" if kind.upper() == "BLOB" else quote_name(name)
+        for _, name, kind, *_ in con.execute(f"PRAGMA source.table_info({quote_name(table)})")
     ]
     return ", ".join(names)

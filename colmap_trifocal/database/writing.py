@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import sqlite3
 import stat
 import tempfile
@@ -66,6 +67,31 @@ def check_writable(path: Path) -> None:
         raise CalibrationError(f"cannot write to read-only database: {path}")
     if not os.access(path.parent, os.W_OK):
         raise CalibrationError(f"cannot write next to the database (read-only directory): {path}")
+    _check_room(path)
+
+
+#: Room kept for the write itself beyond the backup (its journal, the changed pages).
+WRITE_ROOM_BYTES = 256 * 1024
+
+
+def _check_room(path: Path) -> None:
+    """Refuse a write where the database's file system has no room for the backup (the
+    database and its ``-wal``) and the write: before, the calibration ran, then SQLite
+    made ``-wal``/``-shm`` files it could not fill, and they were left next to the input."""
+    size = path.stat().st_size
+    wal = Path(f"{path}-wal")
+    if wal.exists():
+        size += wal.stat().st_size
+    needed = size + WRITE_ROOM_BYTES
+    try:
+        free = shutil.disk_usage(path.parent).free
+    except OSError:
+        return  # unknown: the write says what fails
+    if free < needed:
+        raise CalibrationError(
+            f"no space for a backup of the database and the write ({free} bytes free, "
+            f"about {needed} needed): {path}"
+        )
 
 
 def write_intrinsics(

@@ -31,11 +31,10 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import functools
-import json
 import os
 import subprocess
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -45,8 +44,10 @@ import pycolmap
 
 from ..common.errors import CalibrationError
 from ..common.extras import missing_extra
+from ..common.log import logger
 from ..database.cameras import CameraInfo
 from ..database.from_reconstruction import grouping_cameras, read_reconstruction
+from .report_reader import ReportProblem, RunReportFile, parse_report, read_run_report
 
 if TYPE_CHECKING:
     import open3d
@@ -118,14 +119,42 @@ def registration_colors(count: int) -> np.ndarray:
     return np.stack([np.interp(t, anchors, _COLORMAP[:, c]) for c in range(3)], axis=1)
 
 
+#: The largest coordinate drawn (world units): points beyond are left out of the view,
+#: a camera beyond is refused (1e300 overflowed the view's vectors).
+MAX_COORDINATE = 1e12
+
+
 def _points(reconstruction: pycolmap.Reconstruction) -> tuple[np.ndarray, np.ndarray]:
-    """(n, 3) point positions (world units) and (n, 3) uint8 RGB colours."""
+    """(n, 3) point positions (world units) and (n, 3) uint8 RGB colours; points that are
+    not finite or beyond :data:`MAX_COORDINATE` are left out."""
     points = list(reconstruction.points3D.values())
     if not points:
         return np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
     xyz = np.array([p.xyz for p in points], dtype=float)
     rgb = np.array([p.color for p in points], dtype=np.uint8)
-    return xyz, rgb
+    drawable = np.all(np.abs(xyz) <= MAX_COORDINATE, axis=1)  # NaN compares False
+    return xyz[drawable], rgb[drawable]
+
+
+def _check_drawable(
+    reconstruction: pycolmap.Reconstruction, image_ids: Sequence[int], centres: np.ndarray
+) -> None:
+    """Refuse what no view can frame: a registered image's camera whose params are not
+    finite, or a pose whose centre is not finite or beyond :data:`MAX_COORDINATE` (the
+    view's vectors overflowed to NaN and failed with a TypeError)."""
+    for k, image_id in enumerate(image_ids):
+        camera_id = reconstruction.image(image_id).camera_id
+        params = np.asarray(reconstruction.cameras[camera_id].params, dtype=float)
+        if not np.all(np.isfinite(params)):
+            shown = ", ".join(f"{p:g}" for p in params)
+            raise CalibrationError(
+                f"cannot draw camera {camera_id} of the model: its params ({shown}) are not finite"
+            )
+        if not np.all(np.abs(centres[k]) <= MAX_COORDINATE):
+            raise CalibrationError(
+                f"cannot draw image {image_id} of the model: its pose is not finite or lies "
+                f"beyond {MAX_COORDINATE:g}"
+            )
 
 
 def inlier_mask(xyz: np.ndarray, keep_quantile: float = KEEP_QUANTILE) -> np.ndarray:
@@ -253,7 +282,9 @@ def scene_geometry(
     cloud.colors = o3d.utility.Vector3dVector(rgb[keep].astype(float) / 255.0)
 
     image_ids = sorted(reconstruction.reg_image_ids())
-    world_from_cam, centres = _poses(reconstruction, image_ids)
+    with np.errstate(all="ignore"):  # a pose at 1e300 is refused below, not warned about
+        world_from_cam, centres = _poses(reconstruction, image_ids)
+    _check_drawable(reconstruction, image_ids, centres)
     if frustum_scale is None:
         size = scene_size(xyz[keep], centres)
         frustum_scale = FRUSTUM_FRACTION * size if size > 0 else 1.0
@@ -512,24 +543,40 @@ def render_png(
     finally:
         del renderer
     image = np.vstack([band, view])
+    _write_png(path, cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    return path
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    """``image`` (BGR) as a PNG at ``path``; a FIFO, pipe or device is written without
+    blocking for good (:func:`..common.streams.write_special`; OpenCV's own open of a
+    FIFO without a reader waited forever)."""
+    from ..common.streams import descriptor_of, is_stream, write_special
+
+    if descriptor_of(path) is not None or is_stream(path):
+        ok, encoded = cv2.imencode(".png", image)
+        if not ok:
+            raise CalibrationError(f"cannot encode the image {path}")
+        try:
+            write_special(path, encoded.tobytes())
+        except OSError as exc:
+            raise CalibrationError(
+                f"cannot write the image {path}: {exc.strerror or exc}"
+            ) from None
+        return
     try:
-        written = cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+        written = cv2.imwrite(str(path), image)
     except cv2.error:
         written = False
     if not written:
         raise CalibrationError(f"cannot write the image {path}")
-    return path
 
 
-def run_report(model: Path) -> dict | None:
-    """The ``report.json`` of the ``run`` whose workspace holds ``model`` (``sparse/0``),
-    or None (none there, unreadable, or not a report)."""
-    path = Path(model).resolve().parent.parent / "report.json"
-    try:
-        report = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-    return report if isinstance(report, dict) and isinstance(report.get("cameras"), list) else None
+def run_report(model: Path) -> RunReportFile | None:
+    """The checked ``report.json`` of the ``run`` whose workspace holds ``model``
+    (``sparse/0``), or None (none there, or not usable: see
+    :func:`.report_reader.read_run_report` for why)."""
+    return read_run_report(Path(model))[0]
 
 
 def _intrinsics_text(values: Sequence[float], std: dict | None = None) -> str:
@@ -542,7 +589,9 @@ def _intrinsics_text(values: Sequence[float], std: dict | None = None) -> str:
 
 
 def model_caption(
-    reconstruction: pycolmap.Reconstruction, report: dict | None = None, max_cameras: int = 3
+    reconstruction: pycolmap.Reconstruction,
+    report: RunReportFile | dict | None = None,
+    max_cameras: int = 3,
 ) -> list[str]:
     """Caption lines: the registered images and points, then each camera's K.
 
@@ -550,8 +599,15 @@ def model_caption(
     its cameras in the model) each camera's line is TrifocalCalib's estimate ± std;
     otherwise the model's own K per physical camera (ids grouped as
     :func:`..database.from_reconstruction.grouping_cameras` does, mean K), without std.
-    At most ``max_cameras`` camera lines, then how many more there are.
+    ``report`` is a checked report (:func:`.report_reader.read_run_report`) or a parsed
+    ``report.json`` (checked here; one that fails a check is not used). At most
+    ``max_cameras`` camera lines, then how many more there are.
     """
+    if isinstance(report, dict):
+        try:
+            report = parse_report(report)
+        except ReportProblem:
+            report = None
     registered = reconstruction.num_reg_images()
     lines = [
         f"{registered} of {reconstruction.num_images()} images registered, "
@@ -560,18 +616,15 @@ def model_caption(
     cameras: list[str] = []
     usable = (
         report is not None
-        and report.get("num_registered_images") == registered
-        and all(
-            isinstance(c, dict) and reconstruction.exists_camera(int(c.get("camera_id", -1)))
-            for c in report["cameras"]
-        )
+        and report.num_registered_images == registered
+        and all(reconstruction.exists_camera(c.camera_id) for c in report.cameras)
     )
     if usable and report is not None:
-        for camera in report["cameras"]:
-            values = [camera["trifocal"][n] for n in ("fx", "fy", "cx", "cy")]
+        for camera in report.cameras:
+            images = "?" if camera.num_registered_images is None else camera.num_registered_images
             cameras.append(
-                f"camera {camera['camera_id']} ({camera.get('num_registered_images', '?')} "
-                f"images), TrifocalCalib: {_intrinsics_text(values, camera.get('trifocal_std'))}"
+                f"camera {camera.camera_id} ({images} images), "
+                f"TrifocalCalib: {_intrinsics_text(camera.trifocal, camera.std)}"
             )
     else:
         image_count: dict[int, int] = {}
@@ -601,6 +654,7 @@ def show(
     *,
     width: int = 1280,
     height: int = 960,
+    warn: Callable[[str], None] | None = None,
 ) -> Path | None:
     """Show a COLMAP model: rendered to ``png``, or in a window.
 
@@ -613,6 +667,8 @@ def show(
             window where a display exists (``DISPLAY`` or ``WAYLAND_DISPLAY`` set),
             returning None once it is closed.
         width, height: size of the PNG in pixels.
+        warn: told why a ``report.json`` beside the model is not used (a FIFO, too
+            large, not JSON, a field of the wrong type); default: the log.
 
     Raises:
         CalibrationError: bad model folder, Open3D not installed (the extra ``viz``) or
@@ -626,12 +682,20 @@ def show(
         )
     else:
         reconstruction = load_model(Path(model))
-        report, title = run_report(Path(model)), str(model)
+        title = str(model)
+        report, problem = read_run_report(Path(model))
+        if problem is not None:
+            (warn or logger.warning)(f"{problem}; the caption shows the model's own intrinsics")
     geometries = scene_geometry(reconstruction)
     if png is not None:
         caption = model_caption(reconstruction, report)
         return render_png(geometries, Path(png), width=width, height=height, caption=caption)
     if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         raise CalibrationError("no display: use --png OUT")
+    from .viewer import display_problem
+
+    problem = display_problem()  # a display nobody serves: Open3D would run for ever
+    if problem is not None:
+        raise CalibrationError(f"{problem}: use --png OUT")
     _open3d().visualization.draw_geometries(geometries, window_name=f"colmap-trifocal: {title}")
     return None

@@ -242,14 +242,22 @@ def _features(
     assert images is not None and listing is not None
     names = listing.names
     announce(f"features and matching for {len(names)} images (pycolmap SIFT)", on_stage)
-    build_database(
-        images,
-        database,
-        names,
-        max_image_size=options.max_image_size,
-        camera_model=options.camera_model,
-        matcher=options.matcher,
-        camera_mode=options.camera_mode,
-        progress=options.progress,
-    )
+    try:
+        build_database(
+            images,
+            database,
+            names,
+            max_image_size=options.max_image_size,
+            camera_model=options.camera_model,
+            matcher=options.matcher,
+            camera_mode=options.camera_mode,
+            progress=options.progress,
+        )
+    except (RuntimeError, OSError) as exc:  # COLMAP cannot write it (a full disk, a limit)
+        for leftover in (database, *(Path(f"{database}{s}") for s in ("-journal", "-wal", "-shm"))):
+            leftover.unlink(missing_ok=True)  # a partial database is worth nothing
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise CalibrationError(
+            f"cannot build the database {database}: {reason} (is the disk full?)"
+        ) from None
     return read_database(database)

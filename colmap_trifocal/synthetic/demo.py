@@ -90,6 +90,28 @@ def make_demo_database(
     return truth, prior
 
 
+def _made_or_removed(
+    database: Path, seed: int, created: list[Path]
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`make_demo_database`; where it fails (a full disk: pycolmap raises
+    RuntimeError) one CalibrationError, with the partial database and the folders this
+    run made (``created``, deepest first) removed."""
+    try:
+        return make_demo_database(database, seed=seed)
+    except (RuntimeError, OSError) as exc:
+        for leftover in (database, *(Path(f"{database}{s}") for s in ("-journal", "-wal", "-shm"))):
+            leftover.unlink(missing_ok=True)
+        for folder in created:
+            try:
+                folder.rmdir()
+            except OSError:
+                break
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise CalibrationError(
+            f"cannot write the demo database {database}: {reason} (is the disk full?)"
+        ) from None
+
+
 def run_demo(seed: int = 0, workdir: Path | None = None, method: Method = "msac-opt") -> DemoResult:
     """Build the demo database and run the whole pipeline on it.
 
@@ -100,9 +122,14 @@ def run_demo(seed: int = 0, workdir: Path | None = None, method: Method = "msac-
         refuse_existing_demo(Path(workdir))
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(workdir) if workdir is not None else Path(tmp)
+        created = []
+        missing = folder
+        while not missing.exists() and missing != missing.parent:
+            created.append(missing)
+            missing = missing.parent
         folder.mkdir(parents=True, exist_ok=True)
         database = folder / "demo.db"
-        truth, prior = make_demo_database(database, seed=seed)
+        truth, prior = _made_or_removed(database, seed, created)
         options = RunOptions(method=method, seed=seed, database=database, overwrite=True)
         report = run_pipeline(None, folder / "demo", options)
         return DemoResult(truth=truth, prior=prior, report=report)

@@ -1,0 +1,141 @@
+"""Full disks and file size limits: ``/dev/full``, ``RLIMIT_FSIZE`` in a child process, and
+a small tmpfs where the tests run as root. Nothing is left behind.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+from conftest import CliResult, assert_one_error_line, run_cli
+
+from bad_input.builders import (
+    copy_good,
+    image_folder,
+    run_image_folder,
+)
+from bad_input.table import (
+    QUICK,
+    Case,
+    check_case,
+    limit_file_size,
+    listing,
+    main_lines,
+    sha256,
+)
+from colmap_trifocal.database import writing as database_module
+
+CASES: dict[str, Case] = {
+    "--json on a full disk": Case(
+        copy_good, "cannot write /dev/full: No space left on device", ("--json", "/dev/full")
+    ),
+    "--json on a full disk with --write": Case(
+        copy_good,
+        "cannot write /dev/full: No space left on device",
+        ("--json", "/dev/full", "--write"),
+    ),
+    "no space for the temporary copy": Case(
+        copy_good, "cannot copy the database to the temporary folder", preexec_fn=limit_file_size()
+    ),
+    # ----- issue 37: run and demo on a full file system end in one line and leave nothing
+    # (pycolmap raised RuntimeError: "No registered database factory succeeded")
+    "run onto a full file system": Case(
+        image_folder(lambda _: None, good=3),
+        "cannot build the database ",
+        argv=run_image_folder(),
+        preexec_fn=limit_file_size(),
+    ),
+    "demo --keep onto a full file system": Case(
+        copy_good,
+        "cannot write the demo database ",
+        argv=lambda f, p, w: ("demo", "--keep", w / "new" / "folder"),
+        preexec_fn=limit_file_size(),
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_bad_input(
+    name: str,
+    good_database: Path,
+    tmp_path: Path,
+    run_main: Callable[..., CliResult],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    check_case(CASES[name], good_database, tmp_path, run_main, monkeypatch)
+
+
+def test_no_space_for_the_backup(
+    database_copy: Path, monkeypatch: pytest.MonkeyPatch, run_main: Callable[..., CliResult]
+) -> None:
+    """The backup copy fails (ENOSPC): one line, nothing written, the partial .bak removed."""
+    before = sha256(database_copy)
+
+    def full_disk(path: Path, target: Path) -> None:
+        target.write_bytes(path.read_bytes()[:4096])  # a partial copy, then the disk is full
+        raise OSError(28, os.strerror(28), str(target))
+
+    monkeypatch.setattr(database_module, "_copy_database", full_disk)
+    status, lines = main_lines(run_main, "calibrate", database_copy, *QUICK)
+    assert status == 2
+    assert lines == [
+        f"error: cannot back up the database, nothing written: {database_copy} "
+        "(No space left on device)"
+    ]
+    assert sha256(database_copy) == before
+    assert listing(database_copy.parent) == ["database.db"]
+
+
+# --------------------------------------------------------------------------- a small tmpfs
+
+
+@pytest.fixture
+def small_filesystem(tmp_path: Path) -> Iterator[Callable[[int], Path]]:
+    """Factory: a tmpfs of the given size in KiB, mounted below ``tmp_path`` (root only:
+    skipped where it cannot be mounted), unmounted after the test."""
+    mounted: list[Path] = []
+
+    def mount(size_kib: int) -> Path:
+        point = tmp_path / f"small{len(mounted)}"
+        point.mkdir()
+        done = subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", f"size={size_kib}k", "tmpfs", str(point)],
+            capture_output=True,
+            text=True,
+        )
+        if done.returncode != 0:
+            pytest.skip(f"cannot mount a tmpfs here (root only): {done.stderr.strip()}")
+        mounted.append(point)
+        return point
+
+    yield mount
+    for point in mounted:
+        subprocess.run(["umount", str(point)], check=True)
+
+
+def _fill(folder: Path, leave_kib: int) -> None:
+    """Fill the file system of ``folder`` until ``leave_kib`` KiB are free."""
+    free = shutil.disk_usage(folder).free - (leave_kib << 10)
+    if free > 0:
+        (folder / "filler").write_bytes(b"\0" * free)
+
+
+def test_write_without_room_for_the_backup(
+    good_database: Path, small_filesystem: Callable[[int], Path], tmp_path: Path
+) -> None:
+    """``--write`` on a file system without room for the backup and the write: refused in
+    one line before the calibration, nothing made next to the database (before: the
+    calibration ran, SQLite made -wal and -shm it could not fill, and they were left)."""
+    folder = small_filesystem(1400)
+    database = folder / "database.db"
+    shutil.copyfile(good_database, database)
+    _fill(folder, 20)
+    before = sha256(database)
+    result = run_cli("calibrate", database, *QUICK)
+    assert_one_error_line(result, "no space for a backup of the database and the write")
+    assert result.stdout == ""  # refused before the calibration
+    assert sha256(database) == before and listing(folder) == ["database.db", "filler"]
