@@ -82,7 +82,7 @@ def run_batch(args: argparse.Namespace, paths: list[Path], options: CalibrationO
     failed = written = 0
     with _Lines(None if to_stdout else args.json) as output:
         for _, lines in completed_tasks(
-            calibrate_input, tasks, 1, args.dask, "databases", progress
+            calibrate_input, tasks, 1, args.dask, "databases", progress=progress
         ):
             for line in lines:
                 output.write(line)

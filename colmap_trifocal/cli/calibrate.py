@@ -189,8 +189,8 @@ def _run_database(args: argparse.Namespace, database: Path, options: Calibration
             args.output,
             updated_cameras(results),
             args.refine or "ba",
-            args.refine_distortion,
-            model,
+            refine_distortion=args.refine_distortion,
+            reconstruction=model,
         )
         print(update.describe(), file=out)
     entries = [r.to_json() for r in results] + [g.to_json() for g in skipped]
@@ -225,9 +225,11 @@ def write_text_outputs(
 
     if args.json is not None:
         text = json.dumps(entries, indent=2) + "\n"
-        write_text_output(args.json, text, is_stdout(args.json))
+        write_text_output(args.json, text, to_stdout=is_stdout(args.json))
     if args.cameras_txt is not None:
-        write_text_output(args.cameras_txt, cameras_txt(results), is_stdout(args.cameras_txt))
+        write_text_output(
+            args.cameras_txt, cameras_txt(results), to_stdout=is_stdout(args.cameras_txt)
+        )
 
 
 def check_text_outputs(args: argparse.Namespace) -> list[Output]:

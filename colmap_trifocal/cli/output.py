@@ -198,7 +198,7 @@ def check_output_folder(path: Path, option: str) -> None:
         raise CalibrationError(f"cannot write {option}: folder {existing} is not writable")
 
 
-def write_text_output(path: Path, text: str, to_stdout: bool) -> None:
+def write_text_output(path: Path, text: str, *, to_stdout: bool) -> None:
     """``text`` to standard output or atomically to ``path`` (CalibrationError if not)."""
     try:
         if to_stdout:

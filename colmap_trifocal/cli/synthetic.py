@@ -70,7 +70,12 @@ def run(args: argparse.Namespace) -> int:
     ]
     began = time.perf_counter()
     results = run_tasks(
-        run_synthetic_task, tasks, args.workers, args.dask, "synthetic runs", sys.stderr.isatty()
+        run_synthetic_task,
+        tasks,
+        args.workers,
+        args.dask,
+        "synthetic runs",
+        progress=sys.stderr.isatty(),
     )
     records = [r for rs in results for r in rs]
     finish(records, args, "synthetic", f"synthetic: {args.points} points, {args.runs} runs")

@@ -107,15 +107,7 @@ def refuse_outputs_over_inputs(outputs: Iterable[Output], inputs: Iterable[Input
     outputs = list(outputs)
     inputs = list(inputs)
     _refuse_overlapping_outputs(outputs)
-    for written in outputs:
-        real = Path(os.path.realpath(written.path))
-        for given in inputs:
-            if given.is_backup_name(real):
-                raise CalibrationError(
-                    f"{written.option} {written.path} is a backup name of {given.what} "
-                    f"{given.path} (--write keeps the original there): refusing to write "
-                    f"it{written.hint}"
-                )
+    _refuse_backup_names(outputs, inputs)
     existing = [(output, file_identity(output.path)) for output in outputs]
     files = {identity: output for output, identity in existing if identity is not None}
     folders = {identity: output for identity, output in files.items() if os.path.isdir(output.path)}
@@ -129,29 +121,53 @@ def refuse_outputs_over_inputs(outputs: Iterable[Output], inputs: Iterable[Input
                 continue
             output = files.get(identity)
             if output is not None and identity not in folders:
-                same = (
-                    ""
-                    if os.fspath(path) == os.fspath(output.path)
-                    else f" (the same file as {path})"
-                )
-                what = given.what
-                if path != given.path and not os.path.isdir(given.path):
-                    what = f"{what}'s companion file"  # SQLite's -wal, -shm, -journal
+                _refuse_same_file(output, given, path)
+            if folders:
+                _refuse_inside(given, path, folders, seen)
+
+
+def _refuse_backup_names(outputs: list[Output], inputs: list[Input]) -> None:
+    """Refuse an output named as a database input's backup (``--write`` keeps the
+    original there)."""
+    for written in outputs:
+        real = Path(os.path.realpath(written.path))
+        for given in inputs:
+            if given.is_backup_name(real):
                 raise CalibrationError(
-                    f"{output.option} {output.path} is {what}{same}: "
-                    f"refusing to overwrite it{output.hint}"
+                    f"{written.option} {written.path} is a backup name of {given.what} "
+                    f"{given.path} (--write keeps the original there): refusing to write "
+                    f"it{written.hint}"
                 )
-            if not folders:
-                continue
-            for folder in _real_ancestors(path):
-                if folder not in seen:
-                    seen[folder] = file_identity(folder)
-                output = folders.get(seen[folder])  # type: ignore[arg-type]
-                if output is not None:
-                    raise CalibrationError(
-                        f"{given.name} {given.path} is inside {output.option} {output.path}: "
-                        f"refusing to overwrite it{output.hint}"
-                    )
+
+
+def _refuse_same_file(output: Output, given: Input, path: Path) -> None:
+    """Refuse ``output``, the same file as ``path`` (``given`` or one of its files)."""
+    same = "" if os.fspath(path) == os.fspath(output.path) else f" (the same file as {path})"
+    what = given.what
+    if path != given.path and not os.path.isdir(given.path):
+        what = f"{what}'s companion file"  # SQLite's -wal, -shm, -journal
+    raise CalibrationError(
+        f"{output.option} {output.path} is {what}{same}: refusing to overwrite it{output.hint}"
+    )
+
+
+def _refuse_inside(
+    given: Input,
+    path: Path,
+    folders: dict[tuple[int, int], Output],
+    seen: dict[Path, tuple[int, int] | None],
+) -> None:
+    """Refuse a folder output that holds ``path`` (``given`` or one of its files);
+    ``seen`` caches the identities of the folders above inputs."""
+    for folder in _real_ancestors(path):
+        if folder not in seen:
+            seen[folder] = file_identity(folder)
+        output = folders.get(seen[folder])  # type: ignore[arg-type]
+        if output is not None:
+            raise CalibrationError(
+                f"{given.name} {given.path} is inside {output.option} {output.path}: "
+                f"refusing to overwrite it{output.hint}"
+            )
 
 
 def _refuse_overlapping_outputs(outputs: Sequence[Output]) -> None:

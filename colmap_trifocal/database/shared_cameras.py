@@ -33,8 +33,8 @@ import pycolmap
 
 from ..common.errors import CalibrationError, interrupts_deferred
 from ..common.log import logger
+from .backup import back_up_locked
 from .sqlite_files import check_sqlite_file, connect, database_error
-from .writing import back_up_locked
 
 #: ``sensor_type`` of a camera in COLMAP's rig tables.
 _CAMERA_SENSOR = 0

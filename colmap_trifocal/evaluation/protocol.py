@@ -353,7 +353,7 @@ def evaluate_scene(scene: DatasetScene, options: EvaluationOptions) -> list[RunR
             options.workers,
             options.dask_address,
             f"{scene.name}: runs",
-            options.progress,
+            progress=options.progress,
         )
     return [record for records in results for record in records]
 

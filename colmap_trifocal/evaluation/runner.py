@@ -29,8 +29,8 @@ def run_tasks(
     workers: int | None = None,
     dask_address: str | None = None,
     description: str = "",
-    # Positional: cli/synthetic.py and cli/batch.py pass it so (being edited elsewhere).
-    progress: bool = False,  # noqa: FBT001, FBT002
+    *,
+    progress: bool = False,
 ) -> list[Any]:
     """``[function(task) for task in tasks]`` in order, with a progress bar.
 
@@ -38,7 +38,7 @@ def run_tasks(
     """
     results: list[Any] = [None] * len(tasks)
     for index, result in completed_tasks(
-        function, tasks, workers, dask_address, description, progress
+        function, tasks, workers, dask_address, description, progress=progress
     ):
         results[index] = result
     return results
@@ -50,8 +50,8 @@ def completed_tasks(
     workers: int | None = None,
     dask_address: str | None = None,
     description: str = "",
-    # Positional: cli/synthetic.py and cli/batch.py pass it so (being edited elsewhere).
-    progress: bool = False,  # noqa: FBT001, FBT002
+    *,
+    progress: bool = False,
 ) -> Iterator[tuple[int, Any]]:
     """``(index, function(tasks[index]))`` for every task, as each finishes, with a bar.
 

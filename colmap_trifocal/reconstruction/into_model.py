@@ -135,8 +135,8 @@ def calibrate_model(
     output: Path,
     cameras: dict[int, CameraInfo],
     refine: str = "ba",
-    # Positional: cli/calibrate.py passes it so (being edited elsewhere).
-    refine_distortion: bool = False,  # noqa: FBT001, FBT002
+    *,
+    refine_distortion: bool = False,
     reconstruction: pycolmap.Reconstruction | None = None,
 ) -> ModelUpdate:
     """Copy the model at ``model`` to ``output`` with ``cameras``' params, refined on request.

@@ -54,8 +54,7 @@ class RunReport:
         return asdict(self)
 
 
-# Eight keywords: reconstruction/workflow.py calls it so (being edited elsewhere).
-def build_report(  # noqa: PLR0913
+def build_report(  # noqa: PLR0913 (the report's parts: each a keyword, all from one run)
     reconstruction: pycolmap.Reconstruction,
     calibrations: list[CameraCalibration],
     *,

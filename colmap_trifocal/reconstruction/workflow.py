@@ -161,7 +161,7 @@ def run_pipeline(
     listing = None
     if images is not None and options.database is None:
         listing = list_images(images, options.max_image_size)
-    with open_workspace(workspace, options.overwrite):
+    with open_workspace(workspace, overwrite=options.overwrite):
         return _run_stages(images, listing, workspace, options, given_model, on_stage)
 
 

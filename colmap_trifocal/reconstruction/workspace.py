@@ -55,8 +55,7 @@ def refuse_workspace_over_images(images: Path | None, workspace: Path) -> None:
 
 
 @contextmanager
-# ``overwrite`` positional: reconstruction/workflow.py passes it so (being edited elsewhere).
-def open_workspace(workspace: Path, overwrite: bool) -> Iterator[Path]:  # noqa: FBT001
+def open_workspace(workspace: Path, *, overwrite: bool) -> Iterator[Path]:
     """Create and lock ``workspace``, then :func:`prepare_workspace` it; unlock at the end.
 
     Raises:
