@@ -233,6 +233,7 @@ INTRINSICS_ORDER = (
     "assess",
     "baselines",
     "pipeline",
+    "api_checks",
     "api",
 )
 

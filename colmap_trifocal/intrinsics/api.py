@@ -18,7 +18,6 @@ a reconstruction with ``result.apply(reconstruction)``.
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
@@ -39,6 +38,13 @@ from ..database.from_reconstruction import (
 )
 from ..database.snapshot import DatabaseContents, read_database
 from ..database.writing import write_intrinsics
+from .api_checks import (
+    checked_contents,
+    checked_grouping,
+    checked_methods,
+    checked_options,
+    checked_path,
+)
 from .inputs.prior import default_guess, parse_prior, start_source
 from .options import METHODS, CalibrationOptions, check_options
 from .pipeline import calibrate_camera
@@ -82,8 +88,8 @@ def calibrate_database(
     Raises:
         CalibrationError: bad input (see the message).
     """
-    options = _checked_options(options)
-    path = _checked_path(path, "the database path")
+    options = checked_options(options)
+    path = checked_path(path, "the database path")
     contents, read_seconds = read_contents(path)
     results = calibrate_contents(contents, options)
     results = add_read_seconds(results, read_seconds)
@@ -126,7 +132,7 @@ def reconstruction_groups(
     options: CalibrationOptions | None = None,
 ) -> tuple[list[CameraCalibration], list[SkippedGroup]]:
     """:func:`calibrate_reconstruction`'s results, and the groups it skipped."""
-    options = _checked_options(options)
+    options = checked_options(options)
     if options.write:
         raise CalibrationError(
             "options.write stores estimates in a database; write them into a "
@@ -135,7 +141,7 @@ def reconstruction_groups(
     clock = time.perf_counter()
     if not isinstance(reconstruction, pycolmap.Reconstruction):
         what = "reconstruction (a pycolmap.Reconstruction or a model folder)"
-        reconstruction = read_reconstruction(_checked_path(reconstruction, what))
+        reconstruction = read_reconstruction(checked_path(reconstruction, what))
     contents = contents_from_reconstruction(reconstruction)
     read_seconds = time.perf_counter() - clock
     grouping = grouping_cameras(contents.cameras) if options.group == "auto" else None
@@ -150,72 +156,6 @@ def reconstruction_groups(
         for result in add_read_seconds(results, read_seconds)
     ]
     return results, skipped
-
-
-def _checked_options(options: CalibrationOptions | None) -> CalibrationOptions:
-    """The options (defaults for None), checked; CalibrationError for another type."""
-    return CalibrationOptions() if options is None else check_options(options)
-
-
-def _checked_path(value: object, what: str) -> Path:
-    """``value`` as a path (str, bytes or os.PathLike); CalibrationError for anything else
-    (None, a number, a list of paths), where ``Path()`` would raise TypeError."""
-    if isinstance(value, bytes):
-        value = os.fsdecode(value)
-    if not isinstance(value, str | os.PathLike):
-        raise CalibrationError(
-            f"{what} must be a path (str or os.PathLike), got {type(value).__name__}"
-        )
-    try:
-        path = Path(value)
-    except TypeError as exc:  # an os.PathLike whose __fspath__ gives no str
-        raise CalibrationError(f"{what} must be a path: {exc}") from exc
-    if (isinstance(value, str) and not value) or "\0" in str(path):
-        raise CalibrationError(f"{what} must be a path, got {str(value)!r}")
-    return path
-
-
-def _checked_contents(contents: object) -> DatabaseContents:
-    """``contents`` if it is database contents (:func:`read_contents`); CalibrationError
-    otherwise (an attribute error deep in the grouping before)."""
-    if not isinstance(contents, DatabaseContents):
-        raise CalibrationError(
-            f"contents must be DatabaseContents (see read_contents), got {type(contents).__name__}"
-        )
-    return contents
-
-
-def _checked_methods(methods: object) -> tuple[str, ...]:
-    """At least one method name of :data:`METHODS`, as a tuple; CalibrationError for an
-    empty or non-sequence value (a lone string is not split into letters)."""
-    if isinstance(methods, str | bytes) or not isinstance(methods, Sequence):
-        raise CalibrationError(f"methods must be a tuple of method names, got {methods!r}")
-    if not methods:
-        raise CalibrationError(f"methods: at least one of {METHODS}, got none")
-    unknown = [m for m in methods if not isinstance(m, str) or m not in METHODS]
-    if unknown:
-        raise CalibrationError(f"unknown method {unknown[0]!r} (choose from {METHODS})")
-    return tuple(methods)
-
-
-def _checked_grouping(
-    grouping: object, contents: DatabaseContents
-) -> Mapping[int, CameraInfo] | None:
-    """None, or a mapping from every camera id of ``contents`` to its CameraInfo (what
-    the grouping compares); CalibrationError otherwise."""
-    if grouping is None:
-        return None
-    if not isinstance(grouping, Mapping):
-        raise CalibrationError(
-            f"grouping must map camera ids to CameraInfo, got {type(grouping).__name__}"
-        )
-    bad = [k for k, v in grouping.items() if not isinstance(v, CameraInfo) or k != v.camera_id]
-    if bad:
-        raise CalibrationError(f"grouping: camera id {bad[0]!r} does not map to its CameraInfo")
-    missing = sorted(set(contents.cameras) - set(grouping))
-    if missing:
-        raise CalibrationError(f"grouping: camera id {missing[0]} of the contents is missing")
-    return grouping
 
 
 def read_contents(path: Path | str) -> tuple[DatabaseContents, float]:
@@ -363,10 +303,10 @@ def calibrate_groups(
     estimate, ...) is skipped with the reason while the others calibrate; when none
     calibrates, the first group's error is raised.
     """
-    contents = _checked_contents(contents)
+    contents = checked_contents(contents)
     options = check_options(options)
-    methods = _checked_methods(methods)
-    grouping = _checked_grouping(grouping, contents)
+    methods = checked_methods(methods)
+    grouping = checked_grouping(grouping, contents)
     groups, skipped = plan_groups(contents, options, grouping)
     results: dict[str, list[CameraCalibration]] = {m: [] for m in methods}
     first_error: CalibrationError | None = None
