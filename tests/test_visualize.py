@@ -17,7 +17,7 @@ import pytest
 from conftest import assert_one_error_line, require_open3d, require_rendering, run_cli, synthesize
 
 from colmap_trifocal.common.errors import CalibrationError
-from colmap_trifocal.reconstruction import visualize
+from colmap_trifocal.reconstruction import scene_view, visualize
 
 FAR_POINTS = np.array([[1e4, 0.0, 0.0], [0.0, -2e4, 0.0], [3e3, 3e3, 3e3]])
 
@@ -269,7 +269,7 @@ def test_frustum_scale_follows_the_framed_scene(handheld_model: Path, o3d: Modul
     assert size[0] == pytest.approx(size[1], rel=0.05)
     centre_with, _, _ = visualize.view_for(with_far, 1280, 960)
     centre_without, _, _ = visualize.view_for(without_far, 1280, 960)
-    scene = visualize.scene_size(np.asarray(without_far[0].points))
+    scene = scene_view.scene_size(np.asarray(without_far[0].points))
     assert np.linalg.norm(centre_with - centre_without) < 0.05 * scene
 
 
