@@ -36,8 +36,7 @@ if TYPE_CHECKING:
 def add_parser(commands: argparse._SubParsersAction) -> None:
     """``calibrate DATABASE [DATABASE ...]``: the contract in DESIGN.md."""
     from ..database.camera_groups import GROUPINGS
-    from ..intrinsics.api import METHODS, CalibrationOptions
-    from ..reconstruction.mapping import REFINE_CHOICES
+    from ..intrinsics.api import METHODS
 
     calibrate = commands.add_parser(
         "calibrate", help="estimate the intrinsics of the cameras of COLMAP databases or models"
@@ -79,6 +78,14 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "default), camera (each camera id alone), all (every image one camera)",
     )
     calibrate.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
+    _add_output_arguments(calibrate)
+    _add_model_arguments(calibrate)
+
+
+def _add_output_arguments(calibrate: argparse.ArgumentParser) -> None:
+    """Where the estimate goes (JSON, cameras.txt, the database), and how the run works."""
+    from ..intrinsics.api import CalibrationOptions
+
     calibrate.add_argument(
         "--json",
         type=Path,
@@ -117,6 +124,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="start the tensors from the prior's focal length instead of searching it",
     )
     calibrate.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+
+def _add_model_arguments(calibrate: argparse.ArgumentParser) -> None:
+    """``--model``: the estimate into a copy of an existing model; and ``--dask``."""
+    from ..reconstruction.mapping import REFINE_CHOICES
+
     calibrate.add_argument(
         "--model",
         type=Path,

@@ -23,8 +23,6 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     from ..database.camera_groups import GROUPINGS
     from ..database.cameras import SUPPORTED_MODELS
     from ..database.features import MATCHERS, MAX_IMAGE_SIZE_RANGE
-    from ..intrinsics.api import METHODS
-    from ..reconstruction.mapping import MAPPERS, REFINE_CHOICES
     from ..reconstruction.workflow import RunOptions
 
     run = commands.add_parser(
@@ -63,6 +61,16 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="camera ids sharing intrinsics: auto (same model, size and stored parameters; "
         "default), camera (each camera id alone), all (every image one camera)",
     )
+    _add_stage_arguments(run)
+
+
+def _add_stage_arguments(run: argparse.ArgumentParser) -> None:
+    """The mapping, calibration and refinement settings, the inputs to start from, the
+    outputs."""
+    from ..intrinsics.api import METHODS
+    from ..reconstruction.mapping import MAPPERS, REFINE_CHOICES
+    from ..reconstruction.workflow import RunOptions
+
     run.add_argument(
         "--mapper",
         choices=MAPPERS,
