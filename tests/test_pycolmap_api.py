@@ -1,7 +1,7 @@
 """The API in pycolmap's terms: results as ``pycolmap.Camera``, ``apply`` to a reconstruction,
 a database or a path, ``merge_cameras``, COLMAP's ``cameras.txt``, calibration from a
 reconstruction's tracks (``calibrate_reconstruction``). The README's lines:
-``test_reconstruct.py``; misuse: ``test_bad_input_workflow.py``.
+``test_reconstruct.py``; misuse: ``bad_input/test_pycolmap_workflow.py``.
 
 Accuracy of the reconstruction route against ground truth: a synthetic scene here, the
 Strecha scenes (``real_data``) against calibrating their database directly.

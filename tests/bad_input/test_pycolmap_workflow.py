@@ -1,7 +1,7 @@
 """Bad input to the pycolmap workflow: ``apply``'s and ``merge_cameras``' targets,
 ``calibrate --cameras-txt`` paths, and a command whose pip extra is missing.
 
-The rules of ``test_bad_input.py``, kept in their own file: the API raises
+The rules of the bad-input table (:mod:`bad_input.table`): the API raises
 ``CalibrationError`` and changes nothing (a database byte-identical with no backup
 next to it, a reconstruction's cameras as they were); the command line prints one line
 ``error: ...`` and exits with status 2, no traceback, every file below the row's folder
@@ -11,8 +11,6 @@ import of the module fails as it does where it is not installed.
 
 from __future__ import annotations
 
-import hashlib
-import os
 import subprocess
 import sys
 from collections.abc import Callable
@@ -25,6 +23,8 @@ import pycolmap
 import pytest
 from conftest import CliResult, assert_one_error_line, synthesize
 
+from bad_input.table import PARAMS, tree
+from bad_input.table import QUICK_READ as QUICK
 from colmap_trifocal import (
     CalibrationError,
     CalibrationOptions,
@@ -32,24 +32,6 @@ from colmap_trifocal import (
     calibrate_database,
     merge_cameras,
 )
-
-PARAMS = [1100.0, 1250.0, 530.0, 370.0]
-PRIOR = "1140,1210,545,360"
-#: Enough for a calibration to finish quickly (the outputs are the point here).
-QUICK = ("--prior", PRIOR, "--max-triplets", "3", "--no-focal-search")
-
-
-def sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def tree(folder: Path) -> dict[str, str]:
-    """Every file below ``folder`` (symlinks as their target's name): its sha256."""
-    return {
-        str(p.relative_to(folder)): (f"-> {os.readlink(p)}" if p.is_symlink() else sha256(p))
-        for p in sorted(folder.rglob("*"))
-        if p.is_file() or p.is_symlink()
-    }
 
 
 @pytest.fixture(scope="module")
