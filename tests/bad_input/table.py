@@ -248,3 +248,19 @@ def run_before(function: Callable, action: Callable[[], None]) -> Callable:
         return function(*args, **kwargs)
 
     return wrapped
+
+
+def table_test(cases: dict[str, Case]) -> Callable[..., None]:
+    """The test of a file's table: every row of ``cases`` through :func:`check_case`."""
+
+    @pytest.mark.parametrize("name", list(cases))
+    def test_bad_input(
+        name: str,
+        good_database: Path,
+        tmp_path: Path,
+        run_main: Callable[..., CliResult],
+        monkeypatch: pytest.MonkeyPatch,
+    ) -> None:
+        check_case(cases[name], good_database, tmp_path, run_main, monkeypatch)
+
+    return test_bad_input

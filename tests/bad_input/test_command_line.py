@@ -26,7 +26,7 @@ from bad_input.builders import (
 from bad_input.table import (
     QUICK_READ,
     Case,
-    check_case,
+    table_test,
 )
 
 CASES: dict[str, Case] = {
@@ -222,15 +222,7 @@ CASES: dict[str, Case] = {
 }
 
 
-@pytest.mark.parametrize("name", list(CASES))
-def test_bad_input(
-    name: str,
-    good_database: Path,
-    tmp_path: Path,
-    run_main: Callable[..., CliResult],
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    check_case(CASES[name], good_database, tmp_path, run_main, monkeypatch)
+test_bad_input = table_test(CASES)
 
 
 def test_repeated_camera_id_is_calibrated_once(

@@ -27,12 +27,12 @@ from bad_input.table import (
     QUICK,
     Case,
     camera_params,
-    check_case,
     listing,
     main_lines,
     run_after,
     run_before,
     sha256,
+    table_test,
 )
 from colmap_trifocal.database import sqlite_files
 from colmap_trifocal.database import writing as database_module
@@ -50,15 +50,7 @@ CASES: dict[str, Case] = {
 }
 
 
-@pytest.mark.parametrize("name", list(CASES))
-def test_bad_input(
-    name: str,
-    good_database: Path,
-    tmp_path: Path,
-    run_main: Callable[..., CliResult],
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    check_case(CASES[name], good_database, tmp_path, run_main, monkeypatch)
+test_bad_input = table_test(CASES)
 
 
 def _raise_interrupt() -> None:

@@ -49,9 +49,9 @@ from bad_input.table import (
     QUICK_READ,
     Case,
     camera_params,
-    check_case,
     listing,
     sha256,
+    table_test,
 )
 
 CASES: dict[str, Case] = {
@@ -155,15 +155,7 @@ CASES: dict[str, Case] = {
 }
 
 
-@pytest.mark.parametrize("name", list(CASES))
-def test_bad_input(
-    name: str,
-    good_database: Path,
-    tmp_path: Path,
-    run_main: Callable[..., CliResult],
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    check_case(CASES[name], good_database, tmp_path, run_main, monkeypatch)
+test_bad_input = table_test(CASES)
 
 
 def test_jittered_copies_determine_nothing_and_write_nothing(

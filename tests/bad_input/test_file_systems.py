@@ -21,11 +21,11 @@ from bad_input.builders import (
 from bad_input.table import (
     QUICK,
     Case,
-    check_case,
     limit_file_size,
     listing,
     main_lines,
     sha256,
+    table_test,
 )
 from colmap_trifocal.database import writing as database_module
 
@@ -58,15 +58,7 @@ CASES: dict[str, Case] = {
 }
 
 
-@pytest.mark.parametrize("name", list(CASES))
-def test_bad_input(
-    name: str,
-    good_database: Path,
-    tmp_path: Path,
-    run_main: Callable[..., CliResult],
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    check_case(CASES[name], good_database, tmp_path, run_main, monkeypatch)
+test_bad_input = table_test(CASES)
 
 
 def test_no_space_for_the_backup(

@@ -5,12 +5,9 @@ than 3 usable images is the error, naming the skipped files.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
-import pytest
-from conftest import CliResult, texture_views, without_root_file_access
+from conftest import texture_views, without_root_file_access
 
 from bad_input.builders import (
     JPEG,
@@ -25,7 +22,7 @@ from bad_input.builders import (
 )
 from bad_input.table import (
     Case,
-    check_case,
+    table_test,
 )
 
 CASES: dict[str, Case] = {
@@ -140,12 +137,4 @@ CASES: dict[str, Case] = {
 }
 
 
-@pytest.mark.parametrize("name", list(CASES))
-def test_bad_input(
-    name: str,
-    good_database: Path,
-    tmp_path: Path,
-    run_main: Callable[..., CliResult],
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    check_case(CASES[name], good_database, tmp_path, run_main, monkeypatch)
+test_bad_input = table_test(CASES)

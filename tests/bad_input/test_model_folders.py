@@ -8,7 +8,6 @@ from collections.abc import Callable
 from pathlib import Path
 
 import cv2
-import pytest
 from conftest import CliResult, require_rendering
 
 from bad_input.builders import (
@@ -29,7 +28,7 @@ from bad_input.builders import (
 )
 from bad_input.table import (
     Case,
-    check_case,
+    table_test,
 )
 
 
@@ -141,15 +140,7 @@ CASES: dict[str, Case] = {
 }
 
 
-@pytest.mark.parametrize("name", list(CASES))
-def test_bad_input(
-    name: str,
-    good_database: Path,
-    tmp_path: Path,
-    run_main: Callable[..., CliResult],
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    check_case(CASES[name], good_database, tmp_path, run_main, monkeypatch)
+test_bad_input = table_test(CASES)
 
 
 def test_show_draws_a_model_whose_points_are_all_at_1e300(
