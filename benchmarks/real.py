@@ -49,6 +49,7 @@ from real_scenes import (
 from colmap_trifocal import CalibrationOptions, calibrate_database
 from colmap_trifocal.common.timing import STAGES
 from colmap_trifocal.datasets.strecha import default_datasets_root
+from colmap_trifocal.reconstruction.mapping_runs import mapping_options
 
 BENCHMARKS = Path(__file__).resolve().parent
 NAMES = ("fx", "fy", "cx", "cy")
@@ -176,12 +177,7 @@ def map_database(database: Path, truth: np.ndarray, work: Path, seed: int = 0) -
     work.mkdir(parents=True, exist_ok=True)
     copy = work / "mapping.db"
     copy.write_bytes(database.read_bytes())
-    options = pycolmap.IncrementalPipelineOptions()
-    options.ba_refine_focal_length = True
-    options.ba_refine_principal_point = True
-    options.ba_refine_extra_params = True
-    options.random_seed = seed
-    options.extract_colors = False
+    options = mapping_options(refine_intrinsics=True, seed=seed, colours=False, distortion=True)
     with Stopwatch() as watch, quiet_stderr():
         models = pycolmap.incremental_mapping(str(copy), str(work), str(work), options)
         if models:

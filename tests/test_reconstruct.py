@@ -25,22 +25,12 @@ from colmap_trifocal import (
     reconstruct,
 )
 from colmap_trifocal.datasets.strecha import ground_truth_intrinsics, scene_images
+from colmap_trifocal.reconstruction.mapping import camera_intrinsics
 from colmap_trifocal.synthetic.demo import make_demo_database
 
 
 def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def _k(camera: pycolmap.Camera) -> np.ndarray:
-    return np.array(
-        [
-            camera.focal_length_x,
-            camera.focal_length_y,
-            camera.principal_point_x,
-            camera.principal_point_y,
-        ]
-    )
 
 
 def _error(values: np.ndarray, truth: np.ndarray) -> float:
@@ -111,7 +101,7 @@ def test_the_estimate_is_the_calibration_and_ba_is_an_option(
     assert result.intrinsics.tolist() == direct.intrinsics.tolist()
     refined, (again,) = reconstruct(source, options=ReconstructOptions(refine="ba"))
     assert again.intrinsics.tolist() == result.intrinsics.tolist()
-    moved = _k(one_shared_camera(refined))
+    moved = camera_intrinsics(one_shared_camera(refined))
     assert not np.allclose(moved, result.intrinsics, rtol=1e-9, atol=0)
     assert _error(moved, truth) < 0.002
 
@@ -200,7 +190,7 @@ def test_readme_lines_on_fountain_colmap_default_database(
     reconstruction = namespace["reconstruction"]
     assert reconstruction.num_reg_images() == 11
     camera = one_shared_camera(reconstruction)
-    error = _error(_k(camera), ground_truth_intrinsics(folder))
+    error = _error(camera_intrinsics(camera), ground_truth_intrinsics(folder))
     assert error <= 0.0015, (error, camera.params)
 
 
