@@ -49,6 +49,7 @@ from real_scenes import (
 from colmap_trifocal import CalibrationOptions, calibrate_database
 from colmap_trifocal.common.timing import STAGES
 from colmap_trifocal.datasets.strecha import default_datasets_root
+from colmap_trifocal.reconstruction.mapping import camera_intrinsics
 from colmap_trifocal.reconstruction.mapping_runs import mapping_options
 
 BENCHMARKS = Path(__file__).resolve().parent
@@ -159,17 +160,6 @@ def calibrate_run(database: Path, truth: np.ndarray, start: str, seed: int) -> R
     )
 
 
-def camera_values(camera: pycolmap.Camera) -> np.ndarray:
-    return np.array(
-        [
-            camera.focal_length_x,
-            camera.focal_length_y,
-            camera.principal_point_x,
-            camera.principal_point_y,
-        ]
-    )
-
-
 def map_database(database: Path, truth: np.ndarray, work: Path, seed: int = 0) -> Mapping:
     """pycolmap incremental mapping of a copy of ``database`` (f, pp and distortion
     refined), then a bundle adjustment of f and pp (distortion too, where the model has
@@ -193,7 +183,9 @@ def map_database(database: Path, truth: np.ndarray, work: Path, seed: int = 0) -
     copy.unlink()
     if not models:
         return Mapping([float("nan")] * 4, float("nan"), watch.seconds, 0, total)
-    values = np.array([camera_values(model.cameras[i.camera_id]) for i in model.images.values()])
+    values = np.array(
+        [camera_intrinsics(model.cameras[i.camera_id]) for i in model.images.values()]
+    )
     errors = (values / truth - 1.0) * 100.0
     return Mapping(
         error_percent=np.mean(np.abs(errors), axis=0).tolist(),
