@@ -34,6 +34,7 @@ from bad_input.table import (
     sha256,
     table_test,
 )
+from colmap_trifocal.database import backup as backup_module
 from colmap_trifocal.database import sqlite_files
 from colmap_trifocal.database import writing as database_module
 
@@ -130,7 +131,8 @@ def test_interrupt_before_commit_leaves_nothing(
         how, (_raise_interrupt, *SIGNAL_ENDINGS["sigint"][1:])
     )
     wrap = run_after if when == "after" else run_before
-    monkeypatch.setattr(database_module, function, wrap(getattr(database_module, function), action))
+    module = backup_module if hasattr(backup_module, function) else database_module
+    monkeypatch.setattr(module, function, wrap(getattr(module, function), action))
     status, lines = main_lines(run_main, "calibrate", database_copy, *QUICK)
     assert (status, lines) == (expected_status, [line])
     assert sha256(database_copy) == before
@@ -180,14 +182,14 @@ def test_backup_is_copied_under_a_temporary_name(
     ``.bak``, making ``.bak1`` (issue 15, item 1). The complete copy is renamed."""
     original = database_copy.read_bytes()
     seen: list[list[str]] = []
-    copy = database_module._copy_database
+    copy = backup_module._copy_database
 
     def watched(path: Path, target: Path) -> None:
         seen.append(listing(path.parent))
         copy(path, target)
         seen.append(listing(path.parent))
 
-    monkeypatch.setattr(database_module, "_copy_database", watched)
+    monkeypatch.setattr(backup_module, "_copy_database", watched)
     status, _ = main_lines(run_main, "calibrate", database_copy, *QUICK)
     assert status == 0
     assert seen and not any("database.db.bak" in names for names in seen), seen
@@ -215,6 +217,7 @@ _HALF_A_BACKUP = """
 import os, signal, sys
 from pathlib import Path
 from colmap_trifocal.database.snapshot import read_database
+from colmap_trifocal.database import backup
 from colmap_trifocal.database.writing import write_intrinsics
 
 def partial_copy(path, target):
@@ -225,7 +228,7 @@ def partial_copy(path, target):
     sys.stdin.readline()
     os._exit(0)
 
-sys.modules[write_intrinsics.__module__]._copy_database = partial_copy
+backup._copy_database = partial_copy
 path = Path(sys.argv[1])
 cameras = read_database(path).cameras
 write_intrinsics(path, {i: c.with_intrinsics(1000, 1000, 500, 400) for i, c in cameras.items()})

@@ -27,7 +27,7 @@ from bad_input.table import (
     sha256,
     table_test,
 )
-from colmap_trifocal.database import writing as database_module
+from colmap_trifocal.database import backup as backup_module
 
 CASES: dict[str, Case] = {
     "--json on a full disk": Case(
@@ -71,7 +71,7 @@ def test_no_space_for_the_backup(
         target.write_bytes(path.read_bytes()[:4096])  # a partial copy, then the disk is full
         raise OSError(28, os.strerror(28), str(target))
 
-    monkeypatch.setattr(database_module, "_copy_database", full_disk)
+    monkeypatch.setattr(backup_module, "_copy_database", full_disk)
     status, lines = main_lines(run_main, "calibrate", database_copy, *QUICK)
     assert status == 2
     assert lines == [
