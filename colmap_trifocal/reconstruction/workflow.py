@@ -39,7 +39,8 @@ import pycolmap
 from ..common.errors import CalibrationError
 from ..common.files import Input, Output, refuse_outputs_over_inputs, write_text_atomically
 from ..common.log import logger
-from ..database.features import build_database, check_max_image_size
+from ..database.features import check_max_image_size
+from ..database.features_child import build_database_in_child
 from ..database.snapshot import DatabaseContents, read_database
 from ..database.sqlite_files import copy_database
 from ..intrinsics.api import CalibrationOptions, updated_cameras
@@ -243,7 +244,7 @@ def _features(
     names = listing.names
     announce(f"features and matching for {len(names)} images (pycolmap SIFT)", on_stage)
     try:
-        build_database(
+        build_database_in_child(
             images,
             database,
             names,
@@ -253,11 +254,8 @@ def _features(
             camera_mode=options.camera_mode,
             progress=options.progress,
         )
-    except (RuntimeError, OSError) as exc:  # COLMAP cannot write it (a full disk, a limit)
+    except BaseException:  # a failed or interrupted build: its child has ended
         for leftover in (database, *(Path(f"{database}{s}") for s in ("-journal", "-wal", "-shm"))):
             leftover.unlink(missing_ok=True)  # a partial database is worth nothing
-        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise CalibrationError(
-            f"cannot build the database {database}: {reason} (is the disk full?)"
-        ) from None
+        raise
     return read_database(database)

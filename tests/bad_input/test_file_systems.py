@@ -131,3 +131,22 @@ def test_write_without_room_for_the_backup(
     assert_one_error_line(result, "no space for a backup of the database and the write")
     assert result.stdout == ""  # refused before the calibration
     assert sha256(database) == before and listing(folder) == ["database.db", "filler"]
+
+
+def test_run_onto_a_file_system_that_fills_during_extraction(
+    small_filesystem: Callable[[int], Path], tmp_path: Path
+) -> None:
+    """``run`` onto a file system with room for the database but not for its features: the
+    disk fills during SIFT extraction, where COLMAP aborts its process (a C++ exception in
+    a reader thread: SIGABRT, a glog stack). Extraction runs in a child process, so this
+    is one error line, status 2, and nothing left (the workspace was new)."""
+    images = image_folder(lambda _: None, good=6)(tmp_path, tmp_path)
+    folder = small_filesystem(2000)
+    _fill(folder, 400)  # room for a new database, not for the features of 6 images
+    result = run_cli("run", images, folder / "ws")
+    assert_one_error_line(
+        result,
+        f"cannot build the database {folder / 'ws' / 'database.db'}: no space left on its "
+        "device (feature extraction stopped, killed by signal 6)",
+    )
+    assert listing(folder) == ["filler"]
