@@ -2,8 +2,8 @@
 
 COLMAP's extraction and matching end the whole process on some failures: a disk that
 fills during extraction throws in a reader thread (``std::terminate``, SIGABRT and a glog
-stack on stderr), which no Python code can catch. ``run`` and :func:`..reconstruct`
-therefore build their database in a child process (:func:`build_database_in_child`); a
+stack on stderr), which no Python code can catch. ``run`` (:func:`..run_pipeline`)
+therefore builds its database in a child process (:func:`build_database_in_child`); a
 child that fails is one :class:`CalibrationError` here, and a Python session or notebook
 survives it.
 
