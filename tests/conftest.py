@@ -503,10 +503,18 @@ def synthesize(
     cameras: int = 1,
     frames: int = 6,
     points: int = 400,
+    *,
+    rigs: int = 1,
+    seed: int | None = None,
+    noise: float = 0.0,
 ) -> pycolmap.Reconstruction:
-    """A pycolmap synthetic database (exact keypoints) and its ground truth."""
+    """A pycolmap synthetic database (exact keypoints) and its ground truth.
+
+    ``seed``: pycolmap's random seed, set first (None: whatever state it is in); ``noise``:
+    then that many px of Gaussian noise on the keypoints (0: exact).
+    """
     options = pycolmap.SyntheticDatasetOptions(
-        num_rigs=1,
+        num_rigs=rigs,
         num_cameras_per_rig=cameras,
         num_frames_per_rig=frames,
         num_points3D=points,
@@ -514,8 +522,29 @@ def synthesize(
     )
     if params is not None:
         options.camera_params = params
+    if seed is not None:
+        pycolmap.set_random_seed(seed)
     with pycolmap.Database.open(str(path)) as db:
-        return pycolmap.synthesize_dataset(options, db)
+        truth = pycolmap.synthesize_dataset(options, db)
+        if noise > 0:
+            noise_options = pycolmap.SyntheticNoiseOptions(point2D_stddev=noise)
+            pycolmap.synthesize_noise(noise_options, truth, db)
+    return truth
+
+
+def synthesize_per_image(
+    path: Path,
+    images: int = 6,
+    points: int = 400,
+    params: list[float] | None = None,
+    noise: float = 0.0,
+) -> pycolmap.Reconstruction:
+    """:func:`synthesize` as COLMAP's default import makes a database: one SIMPLE_RADIAL
+    camera (and rig) per image, all with the same params; random seed 0, so the same scene
+    whatever ran before in this process."""
+    return synthesize(
+        path, params=params, frames=1, points=points, rigs=images, seed=0, noise=noise
+    )
 
 
 def intrinsics_of(params: list[float], model: str) -> np.ndarray:

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 import pytest
-from conftest import CliResult, synthesize
+from conftest import CliResult, synthesize, synthesize_per_image
 
 from colmap_trifocal import CalibrationError
 from colmap_trifocal.database.camera_groups import format_ids, group_cameras
@@ -46,17 +46,7 @@ def _camera(camera_id: int, params=(1000.0, 500.0, 400.0, 0.0), size=(1000, 800)
 def per_image_database(path: Path, images: int = 6, points: int = 400) -> pycolmap.Reconstruction:
     """Synthetic database as COLMAP's default makes it: one camera (and rig) per image,
     all with the same parameters."""
-    options = pycolmap.SyntheticDatasetOptions(
-        num_rigs=images,
-        num_cameras_per_rig=1,
-        num_frames_per_rig=1,
-        num_points3D=points,
-        camera_model_id=pycolmap.CameraModelId.SIMPLE_RADIAL,
-    )
-    options.camera_params = SIMPLE_RADIAL
-    pycolmap.set_random_seed(0)  # the same scene whatever ran before in this process
-    with pycolmap.Database.open(str(path)) as db:
-        return pycolmap.synthesize_dataset(options, db)
+    return synthesize_per_image(path, images, points, SIMPLE_RADIAL)
 
 
 # --------------------------------------------------------------------------- grouping (pure)

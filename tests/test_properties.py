@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 import pytest
+from conftest import synthesize
 from hypothesis import HealthCheck, Phase, assume, example, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
@@ -229,20 +230,8 @@ def synthetic_contents(noise_px: float) -> DatabaseContents:
 
     folder = Path(tempfile.mkdtemp(prefix="properties_"))
     path = folder / "database.db"
-    pycolmap.set_random_seed(3)
-    options = pycolmap.SyntheticDatasetOptions(
-        num_rigs=1,
-        num_cameras_per_rig=1,
-        num_frames_per_rig=6,
-        num_points3D=300,
-        camera_model_id=pycolmap.CameraModelId.PINHOLE,
-        camera_params=PARAMS,
-    )
+    synthesize(path, "PINHOLE", PARAMS, points=300, seed=3, noise=noise_px)
     with pycolmap.Database.open(str(path)) as db:
-        reconstruction = pycolmap.synthesize_dataset(options, db)
-        if noise_px > 0:
-            noise = pycolmap.SyntheticNoiseOptions(point2D_stddev=noise_px)
-            pycolmap.synthesize_noise(noise, reconstruction, db)
         camera = db.read_all_cameras()[0]
         camera.params = START
         db.update_camera(camera)

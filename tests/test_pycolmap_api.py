@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 import pytest
-from conftest import database_rows, synthesize
+from conftest import database_rows, synthesize, synthesize_per_image
 
 from colmap_trifocal import (
     CalibrationError,
@@ -153,19 +153,7 @@ def test_camera_is_a_pycolmap_camera_with_the_estimate(tmp_path: Path) -> None:
 
 def _per_image_database(path: Path, images: int = 8) -> pycolmap.Reconstruction:
     """One SIMPLE_RADIAL camera per image with equal params (COLMAP's default), 0.5 px noise."""
-    options = pycolmap.SyntheticDatasetOptions(
-        num_rigs=images,
-        num_cameras_per_rig=1,
-        num_frames_per_rig=1,
-        num_points3D=500,
-        camera_model_id=pycolmap.CameraModelId.SIMPLE_RADIAL,
-    )
-    pycolmap.set_random_seed(0)
-    with pycolmap.Database.open(str(path)) as db:
-        reconstruction = pycolmap.synthesize_dataset(options, db)
-        noise = pycolmap.SyntheticNoiseOptions(point2D_stddev=0.5)
-        pycolmap.synthesize_noise(noise, reconstruction, db)
-    return reconstruction
+    return synthesize_per_image(path, images, points=500, noise=0.5)
 
 
 def test_apply_writes_every_camera_of_the_group(tmp_path: Path) -> None:

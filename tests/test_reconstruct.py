@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 import pytest
-from conftest import PROJECT_ROOT, DatabaseCache, database_rows, strecha_root
+from conftest import PROJECT_ROOT, DatabaseCache, database_rows, strecha_root, synthesize_per_image
 
 from colmap_trifocal import (
     CalibrationError,
@@ -121,17 +121,7 @@ def test_write_stores_the_estimate_and_merges_the_group(tmp_path: Path) -> None:
     """``write=True``: the user's database holds the estimate on one camera per group,
     with a backup of its rows as they were."""
     database = tmp_path / "per_image.db"
-    options = pycolmap.SyntheticDatasetOptions(
-        num_rigs=8,
-        num_cameras_per_rig=1,
-        num_frames_per_rig=1,
-        num_points3D=500,
-        camera_model_id=pycolmap.CameraModelId.SIMPLE_RADIAL,
-    )
-    pycolmap.set_random_seed(0)
-    with pycolmap.Database.open(str(database)) as db:
-        truth = pycolmap.synthesize_dataset(options, db)
-        pycolmap.synthesize_noise(pycolmap.SyntheticNoiseOptions(point2D_stddev=0.5), truth, db)
+    synthesize_per_image(database, images=8, points=500, noise=0.5)
     before = database_rows(database)
     reconstruction, (result,) = reconstruct(database, options=ReconstructOptions(write=True))
     assert database_rows(database.with_name("per_image.db.bak")) == before

@@ -250,8 +250,11 @@ def run_before(function: Callable, action: Callable[[], None]) -> Callable:
     return wrapped
 
 
-def table_test(cases: dict[str, Case]) -> Callable[..., None]:
-    """The test of a file's table: every row of ``cases`` through :func:`check_case`."""
+def table_test(
+    cases: dict[str, Case], check: Callable[[Case, CliResult, Path], None] | None = None
+) -> Callable[..., None]:
+    """The test of a file's table: every row of ``cases`` through :func:`check_case`, then
+    ``check(row, result, tmp_path)`` where given (what a file's rows must also give)."""
 
     @pytest.mark.parametrize("name", list(cases))
     def test_bad_input(
@@ -261,6 +264,8 @@ def table_test(cases: dict[str, Case]) -> Callable[..., None]:
         run_main: Callable[..., CliResult],
         monkeypatch: pytest.MonkeyPatch,
     ) -> None:
-        check_case(cases[name], good_database, tmp_path, run_main, monkeypatch)
+        result = check_case(cases[name], good_database, tmp_path, run_main, monkeypatch)
+        if check is not None:
+            check(cases[name], result, tmp_path)
 
     return test_bad_input

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import pycolmap
 import pytest
-from conftest import CliResult, assert_one_error_line, synthesize
+from conftest import CliResult, assert_one_error_line, synthesize, synthesize_per_image
 
 from bad_input.table import PARAMS, tree
 from bad_input.table import QUICK_READ as QUICK
@@ -38,16 +38,7 @@ from colmap_trifocal import (
 def per_image(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, CameraCalibration]:
     """One SIMPLE_RADIAL camera per image (COLMAP's default), 6 images; its calibration."""
     path = tmp_path_factory.mktemp("per_image") / "database.db"
-    options = pycolmap.SyntheticDatasetOptions(
-        num_rigs=6,
-        num_cameras_per_rig=1,
-        num_frames_per_rig=1,
-        num_points3D=400,
-        camera_model_id=pycolmap.CameraModelId.SIMPLE_RADIAL,
-    )
-    pycolmap.set_random_seed(0)
-    with pycolmap.Database.open(str(path)) as db:
-        pycolmap.synthesize_dataset(options, db)
+    synthesize_per_image(path)
     (result,) = calibrate_database(path, CalibrationOptions(max_triplets=3))
     return path, result
 
