@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 import tempfile
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .errors import CalibrationError
+
+if TYPE_CHECKING:
+    import pycolmap
 
 #: SQLite's companion files of a database ``NAME``: ``NAME-wal``, ``NAME-shm``, ``NAME-journal``.
 SQLITE_COMPANIONS = ("-wal", "-shm", "-journal")
@@ -225,14 +230,76 @@ def write_text_atomically(path: Path, text: str) -> None:
     path = Path(os.path.realpath(path))  # through a symlink, not over it
     fd, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.fchmod(fd, 0o666 & ~umask)
+        os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, "w", encoding="utf-8") as stream:  # whatever the locale
             stream.write(text)
             stream.flush()
             os.fsync(stream.fileno())
         os.replace(temporary, path)
-    except BaseException:
+    except BaseException as exc:
         Path(temporary).unlink(missing_ok=True)
+        if isinstance(exc, OSError) and exc.filename is None:  # a write or fsync: say where
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
         raise
+
+
+def write_model_atomically(reconstruction: pycolmap.Reconstruction, folder: Path) -> None:
+    """``reconstruction.write`` into ``folder`` (new, or an empty folder) without ever
+    leaving part of a model there.
+
+    The files go into a temporary folder beside ``folder``, are read back, and the folder
+    is renamed to ``folder`` only when the model read back has every camera, image and
+    point: pycolmap writes silently truncated files on a full disk (measured with
+    pycolmap 4.2.1: ``points3D.bin`` of 0 bytes, no exception). On any error the
+    temporary folder is removed.
+
+    Raises:
+        CalibrationError: the model could not be written (the reason, and the folder).
+    """
+    import shutil
+
+    folder = Path(os.path.realpath(folder))  # through a symlink, not over it
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    temporary = Path(tempfile.mkdtemp(dir=folder.parent, prefix=f".{folder.name}.", suffix=".tmp"))
+    try:
+        os.chmod(temporary, 0o777 & ~_umask())  # as mkdir makes a folder (mkdtemp: 0700)
+        reconstruction.write(temporary)
+        if not _read_back(temporary, _model_counts(reconstruction)):
+            raise OSError(errno.ENOSPC, "the files read back are incomplete (a full disk?)")
+        os.replace(temporary, folder)
+    except (OSError, RuntimeError, ValueError) as exc:
+        shutil.rmtree(temporary, ignore_errors=True)
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else None
+        reason = reason or (str(exc).strip().splitlines() or [type(exc).__name__])[-1]
+        raise CalibrationError(f"cannot write the model to {folder}: {reason}") from None
+    except BaseException:
+        shutil.rmtree(temporary, ignore_errors=True)
+        raise
+
+
+def _read_back(folder: Path, counts: tuple[int, int, int, int]) -> bool:
+    """Whether the model in ``folder`` reads back with ``counts`` (:func:`_model_counts`);
+    pycolmap raises anything (``IndexError``, ``RuntimeError``) on truncated files."""
+    import pycolmap
+
+    try:
+        return _model_counts(pycolmap.Reconstruction(folder)) == counts
+    except Exception:  # noqa: BLE001 (any failure to read is an incomplete model)
+        return False
+
+
+def _model_counts(reconstruction: pycolmap.Reconstruction) -> tuple[int, int, int, int]:
+    """Cameras, images, registered images and points of a model."""
+    return (
+        reconstruction.num_cameras(),
+        reconstruction.num_images(),
+        reconstruction.num_reg_images(),
+        reconstruction.num_points3D(),
+    )
+
+
+def _umask() -> int:
+    """The process's file mode creation mask (read by setting it and setting it back)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    return umask

@@ -360,7 +360,7 @@ def read_database(path: Path, *, fundamentals: bool = False) -> DatabaseContents
     path = Path(path)
     with tempfile.TemporaryDirectory(prefix="colmap_trifocal_") as tmp:
         snapshot = Path(tmp) / "snapshot.db"
-        copy_database(path, snapshot, without_blobs=SKIPPED_TABLES)
+        copy_database(path, snapshot, without_blobs=SKIPPED_TABLES, temporary=True)
         num_matched_pairs = _check_snapshot(snapshot, path)
         contents, skipped = _read_snapshot(snapshot, path, fundamentals=fundamentals)
     num_images = len(contents.image_names)

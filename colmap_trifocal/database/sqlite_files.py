@@ -86,7 +86,12 @@ def _uri(path: Path, query: str) -> str:
 
 
 def database_error(
-    exc: Exception, path: Path, action: str = "read", copy_folder: Path | None = None
+    exc: Exception,
+    path: Path,
+    action: str = "read",
+    copy_folder: Path | None = None,
+    *,
+    temporary: bool = False,
 ) -> CalibrationError:
     """The one-line user error for an error SQLite or pycolmap raised on the database at ``path``.
 
@@ -102,6 +107,8 @@ def database_error(
         action: what was being done to it, as in "cannot read database".
         copy_folder: the folder a copy of the database was being written to; a full disk
             or an I/O error is then reported as a failed copy into it.
+        temporary: the copy is this tool's temporary one: a full temporary folder
+            (``TMPDIR``) is then named as such, with the way around it.
     """
     if not isinstance(exc, sqlite3.Error):
         message = (str(exc).strip().splitlines() or [type(exc).__name__])[-1]
@@ -123,7 +130,7 @@ def database_error(
         if copy_folder is None:
             return CalibrationError(f"cannot {action} database: {reason}: {path}")
         temporary_root = tempfile.gettempdir()
-        if Path(temporary_root).resolve() in copy_folder.resolve().parents:
+        if temporary and Path(temporary_root).resolve() in copy_folder.resolve().parents:
             return CalibrationError(
                 f"cannot copy the database to the temporary folder {temporary_root} "
                 f"({reason}; is it full? set TMPDIR to another folder): {path}"
@@ -135,7 +142,13 @@ def database_error(
 # --------------------------------------------------------------------------- the copy
 
 
-def copy_database(path: Path, target: Path, without_blobs: frozenset[str] = frozenset()) -> None:
+def copy_database(
+    path: Path,
+    target: Path,
+    without_blobs: frozenset[str] = frozenset(),
+    *,
+    temporary: bool = False,
+) -> None:
     """Copy the COLMAP database at ``path`` into ``target`` (a new or empty file).
 
     The copy is one read transaction, so it is consistent, and it holds every committed
@@ -153,6 +166,7 @@ def copy_database(path: Path, target: Path, without_blobs: frozenset[str] = froz
             kept, with their sizes). Without any, the copy is SQLite's backup API, page by
             page; with some, every table and index is created with the source's schema and
             filled table by table.
+        temporary: ``target`` is this tool's temporary copy (see :func:`database_error`).
 
     Raises:
         CalibrationError: not an SQLite or COLMAP database, locked, corrupt, or no room
@@ -171,7 +185,9 @@ def copy_database(path: Path, target: Path, without_blobs: frozenset[str] = froz
             target.write_bytes(b"")
         _copy(_uri(path, "mode=ro"), target, without_blobs, path)
     except sqlite3.Error as exc:
-        raise database_error(exc, path, "copy", copy_folder=target.parent) from exc
+        raise database_error(
+            exc, path, "copy", copy_folder=target.parent, temporary=temporary
+        ) from exc
 
 
 def copy_open_database(path: Path, target: Path) -> None:

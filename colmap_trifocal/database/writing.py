@@ -48,13 +48,14 @@ from .sqlite_files import (
 )
 
 
-def check_writable(path: Path) -> None:
+def check_writable(path: Path, *, backup: bool = True) -> None:
     """Raise :class:`CalibrationError` unless ``path`` is an SQLite file this process may change.
 
     Cheap (no database access): the CLI calls it before a long calibration so that a
     read-only database with ``--write`` is refused at once, not after minutes of work.
     Read-only means no write permission, or no write bit at all (even for root), or a
-    folder in which the backup cannot be made.
+    folder in which the backup cannot be made; or no room for the write (and with
+    ``backup``, the backup).
     """
     path = Path(path)
     check_sqlite_file(path)
@@ -64,30 +65,33 @@ def check_writable(path: Path) -> None:
         raise CalibrationError(f"cannot write to read-only database: {path}")
     if not os.access(path.parent, os.W_OK):
         raise CalibrationError(f"cannot write next to the database (read-only directory): {path}")
-    _check_room(path)
+    _check_room(path, backup=backup)
 
 
 #: Room kept for the write itself beyond the backup (its journal, the changed pages).
 WRITE_ROOM_BYTES = 256 * 1024
 
 
-def _check_room(path: Path) -> None:
-    """Refuse a write where the database's file system has no room for the backup (the
-    database and its ``-wal``) and the write: before, the calibration ran, then SQLite
-    made ``-wal``/``-shm`` files it could not fill, and they were left next to the input."""
-    size = path.stat().st_size
-    wal = Path(f"{path}-wal")
-    if wal.exists():
-        size += wal.stat().st_size
+def _check_room(path: Path, *, backup: bool) -> None:
+    """Refuse a write where the database's file system has no room for the write and, with
+    ``backup``, the backup (the database and its ``-wal``): before, the calibration ran,
+    then SQLite made ``-wal``/``-shm`` files it could not fill, and they were left next to
+    the input."""
+    size = 0
+    if backup:
+        size = path.stat().st_size
+        wal = Path(f"{path}-wal")
+        if wal.exists():
+            size += wal.stat().st_size
     needed = size + WRITE_ROOM_BYTES
     try:
         free = shutil.disk_usage(path.parent).free
     except OSError:
         return  # unknown: the write says what fails
     if free < needed:
+        what = "a backup of the database and the write" if backup else "the write"
         raise CalibrationError(
-            f"no space for a backup of the database and the write ({free} bytes free, "
-            f"about {needed} needed): {path}"
+            f"no space for {what} ({free} bytes free, about {needed} needed): {path}"
         )
 
 
@@ -116,7 +120,7 @@ def write_intrinsics(
             COMMIT (the database is then written and the backup kept).
     """
     path = Path(path)
-    check_writable(path)
+    check_writable(path, backup=backup)
     if not cameras:
         logger.info("no cameras to write")
         return None

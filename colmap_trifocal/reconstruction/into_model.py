@@ -18,6 +18,7 @@ from pathlib import Path
 import pycolmap
 
 from ..common.errors import CalibrationError
+from ..common.files import write_model_atomically
 from ..common.log import logger
 from ..database.cameras import CameraInfo
 from ..intrinsics.results import apply_cameras
@@ -164,7 +165,6 @@ def calibrate_model(
     if refine == "ba":
         refine_intrinsics(reconstruction, distortion=refine_distortion)
         refined = reprojection_error(reconstruction)
-    Path(output).mkdir(parents=True, exist_ok=True)
-    reconstruction.write(output)
+    write_model_atomically(reconstruction, Path(output))
     logger.info("wrote the model with %d calibrated camera(s) to %s", len(written), output)
     return ModelUpdate(Path(output), written, given, with_estimate, refined)

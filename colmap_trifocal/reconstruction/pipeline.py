@@ -157,7 +157,7 @@ def reconstruct(
     contents = read_database(database)  # validated, one-line errors
     with tempfile.TemporaryDirectory(prefix="colmap-trifocal-", dir=options.workdir) as tmp:
         copy = Path(tmp) / "database.db"
-        copy_database(database, copy)  # with what is still in its -wal
+        copy_database(database, copy, temporary=True)  # with what is still in its -wal
         calibrations = calibrate_for_mapping(contents, copy, options.calibration)
         if options.write:
             store_in_user_database(database, calibrations)

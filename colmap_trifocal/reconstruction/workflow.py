@@ -37,7 +37,13 @@ from typing import Any
 import pycolmap
 
 from ..common.errors import CalibrationError
-from ..common.files import Input, Output, refuse_outputs_over_inputs, write_text_atomically
+from ..common.files import (
+    Input,
+    Output,
+    refuse_outputs_over_inputs,
+    write_model_atomically,
+    write_text_atomically,
+)
 from ..common.log import logger
 from ..database.features import check_max_image_size
 from ..database.features_child import build_database_in_child
@@ -208,9 +214,7 @@ def _run_stages(
         refine_calibrated(reconstruction, calibrations, on_stage)
     seconds["refine"] = time.perf_counter() - began
 
-    model_dir = workspace / "sparse" / "0"
-    model_dir.mkdir(parents=True, exist_ok=True)
-    reconstruction.write(model_dir)
+    write_model_atomically(reconstruction, workspace / "sparse" / "0")
     report = build_report(
         reconstruction,
         calibrations,
@@ -236,14 +240,14 @@ def _features(
 ) -> DatabaseContents:
     """The workspace's ``database.db``: a copy of ``--database`` (with what is still in its
     ``-wal``), or SIFT features and matches of the listed images; its snapshot."""
-    if options.database is not None:
-        contents = read_database(options.database)  # validated (one-line errors), then copied
-        copy_database(options.database, database)
-        return contents
-    assert images is not None and listing is not None
-    names = listing.names
-    announce(f"features and matching for {len(names)} images (pycolmap SIFT)", on_stage)
     try:
+        if options.database is not None:
+            contents = read_database(options.database)  # validated (one-line errors)
+            copy_database(options.database, database)
+            return contents
+        assert images is not None and listing is not None
+        names = listing.names
+        announce(f"features and matching for {len(names)} images (pycolmap SIFT)", on_stage)
         build_database_in_child(
             images,
             database,
@@ -254,7 +258,7 @@ def _features(
             camera_mode=options.camera_mode,
             progress=options.progress,
         )
-    except BaseException:  # a failed or interrupted build: its child has ended
+    except BaseException:  # a failed or interrupted copy or build (its child has ended)
         for leftover in (database, *(Path(f"{database}{s}") for s in ("-journal", "-wal", "-shm"))):
             leftover.unlink(missing_ok=True)  # a partial database is worth nothing
         raise

@@ -11,7 +11,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from conftest import CliResult, assert_one_error_line, run_cli
+from conftest import CliResult, assert_one_error_line, run_cli, synthesize
 
 from bad_input.builders import (
     copy_good,
@@ -27,6 +27,8 @@ from bad_input.table import (
     sha256,
     table_test,
 )
+from colmap_trifocal.common.errors import CalibrationError
+from colmap_trifocal.common.files import write_model_atomically
 from colmap_trifocal.database import backup as backup_module
 
 CASES: dict[str, Case] = {
@@ -148,5 +150,36 @@ def test_run_onto_a_file_system_that_fills_during_extraction(
         result,
         f"cannot build the database {folder / 'ws' / 'database.db'}: no space left on its "
         "device (feature extraction stopped, killed by signal 6)",
+    )
+    assert listing(folder) == ["filler"]
+
+
+def test_model_on_a_full_file_system_is_not_left_in_part(
+    small_filesystem: Callable[[int], Path], tmp_path: Path
+) -> None:
+    """A model that does not fit: one error that names the folder, and neither the folder
+    nor the temporary one it was written into is left (pycolmap raises after writing
+    some of the files)."""
+    reconstruction = synthesize(tmp_path / "database.db", points=2000)
+    folder = small_filesystem(400)
+    _fill(folder, 24)
+    with pytest.raises(CalibrationError, match=f"cannot write the model to {folder / '0'}: "):
+        write_model_atomically(reconstruction, folder / "0")
+    assert listing(folder) == ["filler"]
+
+
+def test_run_database_onto_a_full_file_system(
+    good_database: Path, small_filesystem: Callable[[int], Path], tmp_path: Path
+) -> None:
+    """``run --database`` whose copy does not fit in the workspace: one line that names the
+    workspace (not the temporary folder), and no partial copy or workspace left."""
+    images = image_folder(lambda _: None, good=3)(tmp_path, tmp_path)
+    folder = small_filesystem(400)
+    _fill(folder, good_database.stat().st_size // 2048)  # room for half of the copy
+    result = run_cli("run", "--database", good_database, images, folder / "ws")
+    assert_one_error_line(
+        result,
+        f"cannot copy the database to {folder / 'ws'} (no space left on the device): "
+        f"{good_database}",
     )
     assert listing(folder) == ["filler"]
