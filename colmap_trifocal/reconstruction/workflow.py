@@ -45,8 +45,8 @@ from ..common.files import (
     write_text_atomically,
 )
 from ..common.log import logger
+from ..common.pycolmap_child import call_in_child
 from ..database.features import check_max_image_size
-from ..database.features_child import build_database_in_child
 from ..database.snapshot import DatabaseContents, read_database
 from ..database.sqlite_files import copy_database
 from ..intrinsics.api import CalibrationOptions, updated_cameras
@@ -248,14 +248,20 @@ def _features(
         assert images is not None and listing is not None
         names = listing.names
         announce(f"features and matching for {len(names)} images (pycolmap SIFT)", on_stage)
-        build_database_in_child(
-            images,
-            database,
-            names,
-            max_image_size=options.max_image_size,
-            camera_model=options.camera_model,
-            matcher=options.matcher,
-            camera_mode=options.camera_mode,
+        call_in_child(
+            "colmap_trifocal.database.features.build_database",
+            {
+                "image_dir": str(images),
+                "database": str(database),
+                "image_names": names,
+                "max_image_size": options.max_image_size,
+                "camera_model": options.camera_model,
+                "matcher": options.matcher,
+                "camera_mode": options.camera_mode,
+                "progress": options.progress,
+            },
+            output=database,
+            failure=f"cannot build the database {database}",
             progress=options.progress,
         )
     except BaseException:  # a failed or interrupted copy or build (its child has ended)

@@ -17,6 +17,7 @@ import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
+from ..common.pycolmap_child import call_in_child
 from ..intrinsics.options import Method
 from ..intrinsics.results import PARAMETER_NAMES
 from ..reconstruction.report import RunReport
@@ -90,15 +91,29 @@ def make_demo_database(
     return truth, prior
 
 
+def demo_database_values(path: str, seed: int) -> tuple[list[float], list[float]]:
+    """:func:`make_demo_database` at ``path`` with ``seed``; (truth, prior) as lists (the
+    child process of :func:`_made_or_removed` returns them through JSON)."""
+    truth, prior = make_demo_database(Path(path), seed=seed)
+    return truth.tolist(), prior.tolist()
+
+
 def _made_or_removed(
     database: Path, seed: int, created: list[Path]
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`make_demo_database`; where it fails (a full disk: pycolmap raises
-    RuntimeError) one CalibrationError, with the partial database and the folders this
-    run made (``created``, deepest first) removed."""
+    """:func:`make_demo_database` in a child process (:mod:`..common.pycolmap_child`: on a
+    full disk pycolmap raises, then aborts the process when the database closes); where
+    it fails one CalibrationError, with the partial database and the folders this run
+    made (``created``, deepest first) removed."""
     try:
-        return make_demo_database(database, seed=seed)
-    except (RuntimeError, OSError) as exc:
+        truth, prior = call_in_child(
+            "colmap_trifocal.synthetic.demo.demo_database_values",
+            {"path": str(database), "seed": seed},
+            output=database,
+            failure=f"cannot write the demo database {database}",
+            progress=False,
+        )
+    except BaseException:
         for leftover in (database, *(Path(f"{database}{s}") for s in ("-journal", "-wal", "-shm"))):
             leftover.unlink(missing_ok=True)
         for folder in created:
@@ -106,10 +121,8 @@ def _made_or_removed(
                 folder.rmdir()
             except OSError:
                 break
-        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise CalibrationError(
-            f"cannot write the demo database {database}: {reason} (is the disk full?)"
-        ) from None
+        raise
+    return np.array(truth), np.array(prior)
 
 
 def run_demo(seed: int = 0, workdir: Path | None = None, method: Method = "msac-opt") -> DemoResult:

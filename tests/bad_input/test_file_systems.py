@@ -149,7 +149,7 @@ def test_run_onto_a_file_system_that_fills_during_extraction(
     assert_one_error_line(
         result,
         f"cannot build the database {folder / 'ws' / 'database.db'}: no space left on its "
-        "device (feature extraction stopped, killed by signal 6)",
+        "device (stopped, killed by signal 6)",
     )
     assert listing(folder) == ["filler"]
 
@@ -183,3 +183,18 @@ def test_run_database_onto_a_full_file_system(
         f"{good_database}",
     )
     assert listing(folder) == ["filler"]
+
+
+def test_demo_onto_a_file_system_that_fills_while_it_writes(
+    small_filesystem: Callable[[int], Path],
+) -> None:
+    """``demo --keep`` onto a file system that fills while the demo database is written:
+    pycolmap raises, and when that database closes it throws again from a destructor,
+    which aborted the process after the error line. Built in a child process, it is one
+    error line, status 2, and nothing left."""
+    folder = small_filesystem(8000)
+    result = run_cli("demo", "--keep", folder / "d")
+    assert_one_error_line(
+        result, f"cannot write the demo database {folder / 'd' / 'demo.db'}: no space left"
+    )
+    assert listing(folder) == []
