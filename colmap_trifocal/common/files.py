@@ -249,9 +249,8 @@ def write_model_atomically(reconstruction: pycolmap.Reconstruction, folder: Path
 
     The files go into a temporary folder beside ``folder``, are read back, and the folder
     is renamed to ``folder`` only when the model read back has every camera, image and
-    point: pycolmap writes silently truncated files on a full disk (measured with
-    pycolmap 4.2.1: ``points3D.bin`` of 0 bytes, no exception). On any error the
-    temporary folder is removed.
+    point: on a full disk pycolmap writes truncated files without raising
+    (docs/reliability.md). On any error the temporary folder is removed.
 
     Raises:
         CalibrationError: the model could not be written (the reason, and the folder).
