@@ -496,6 +496,15 @@ def require_rendering() -> None:
 # --------------------------------------------------------------------------- synthetic data
 
 
+@pytest.fixture(autouse=True)
+def fresh_pycolmap_random_state() -> None:
+    """Every test starts from pycolmap's random state of a fresh process (seed 0), the
+    state it has when run alone. pycolmap's generator is global: without this, a synthetic
+    scene depended on which tests the same xdist worker ran before (``test_model_folder``
+    once drew a scene from which nothing is determined)."""
+    pycolmap.set_random_seed(0)
+
+
 def synthesize(
     path: Path,
     model: str = "SIMPLE_RADIAL",
