@@ -302,3 +302,10 @@ def _umask() -> int:
     umask = os.umask(0)
     os.umask(umask)
     return umask
+
+
+def remove_database_files(path: Path) -> None:
+    """Remove the SQLite database ``path`` and its companions (:data:`SQLITE_COMPANIONS`)
+    where they exist: a partial database this tool was writing is worth nothing."""
+    for leftover in (Path(path), *(Path(f"{path}{suffix}") for suffix in SQLITE_COMPANIONS)):
+        leftover.unlink(missing_ok=True)

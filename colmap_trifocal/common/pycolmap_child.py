@@ -30,8 +30,8 @@ from .children import child_process
 from .errors import CalibrationError
 
 #: The child: ``module.function(**json)`` with tqdm's bars on stdout; its return value
-#: as JSON in the file ``sys.argv[3] + ".json"``; a refused input is its message in the
-#: file ``sys.argv[3]`` and status 2.
+#: as JSON in the file ``sys.argv[5]``; a refused input is its message in the file
+#: ``sys.argv[3]`` and status 2.
 _CHILD = """\
 import importlib, json, pathlib, sys
 from colmap_trifocal.common.children import die_with_parent
@@ -47,7 +47,7 @@ try:
 except CalibrationError as exc:
     pathlib.Path(sys.argv[3]).write_text(str(exc), encoding="utf-8")
     sys.exit(2)
-pathlib.Path(sys.argv[3] + ".json").write_text(json.dumps(result, default=str))
+pathlib.Path(sys.argv[5]).write_text(json.dumps(result, default=str))
 """
 
 #: What SQLite and the system say when a disk (or a file size limit) is full.
@@ -84,7 +84,7 @@ def call_in_child(
     arguments = {**arguments, "minloglevel": int(pycolmap.logging.minloglevel)}
     verbose = int(pycolmap.logging.minloglevel) == 0
     with tempfile.TemporaryDirectory(prefix="colmap-trifocal-child-") as tmp:
-        refused, log_path = Path(tmp) / "refused.txt", Path(tmp) / "log.txt"
+        refused, result, log_path = (Path(tmp) / name for name in ("refused", "result", "log"))
         command = [
             sys.executable,
             "-c",
@@ -93,6 +93,7 @@ def call_in_child(
             json.dumps(arguments),
             str(refused),
             str(os.getpid()),
+            str(result),
         ]
         stdout = _progress_stream() if progress else subprocess.DEVNULL
         with (
@@ -101,7 +102,7 @@ def call_in_child(
         ):
             status = child.wait()
         if status == 0:
-            return json.loads(Path(f"{refused}.json").read_text())
+            return json.loads(result.read_text())
         if status == 2 and refused.is_file():
             raise CalibrationError(refused.read_text(encoding="utf-8"))
         with log_path.open("rb") as tail:

@@ -41,6 +41,7 @@ from ..common.files import (
     Input,
     Output,
     refuse_outputs_over_inputs,
+    remove_database_files,
     write_model_atomically,
     write_text_atomically,
 )
@@ -265,7 +266,6 @@ def _features(
             progress=options.progress,
         )
     except BaseException:  # a failed or interrupted copy or build (its child has ended)
-        for leftover in (database, *(Path(f"{database}{s}") for s in ("-journal", "-wal", "-shm"))):
-            leftover.unlink(missing_ok=True)  # a partial database is worth nothing
+        remove_database_files(database)
         raise
     return read_database(database)

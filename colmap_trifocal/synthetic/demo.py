@@ -17,6 +17,7 @@ import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
+from ..common.files import remove_database_files
 from ..common.pycolmap_child import call_in_child
 from ..intrinsics.options import Method
 from ..intrinsics.results import PARAMETER_NAMES
@@ -114,8 +115,7 @@ def _made_or_removed(
             progress=False,
         )
     except BaseException:
-        for leftover in (database, *(Path(f"{database}{s}") for s in ("-journal", "-wal", "-shm"))):
-            leftover.unlink(missing_ok=True)
+        remove_database_files(database)
         for folder in created:
             try:
                 folder.rmdir()
