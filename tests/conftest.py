@@ -93,6 +93,15 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
             os.environ[DATASETS_ENV] = saved
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The ``slow`` tests first, in their collected order, then the rest.
+
+    Under pytest-xdist the workers then start on the minute-long tests together and fill
+    in with the short ones, rather than one worker running a long test alone at the end.
+    """
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 def strecha_root() -> Path:
     """The ``strecha`` folder, or skip (fail under CI=true) when it is absent."""
     return shared_dataset("strecha")
