@@ -31,10 +31,10 @@ from colmap_trifocal.synthetic.motions import forward_driving, handheld_indoor
 NAMES = ("fx", "fy", "cx", "cy")
 
 
-def _default_camera_contents(k1: float, seed: int):
-    """The 17-frame handheld set through a ``k1`` lens, stored as COLMAP's default
+def _default_camera_contents(k1: float, seed: int, k2: float = 0.0):
+    """The 17-frame handheld set through a ``(k1, k2)`` lens, stored as COLMAP's default
     SIMPLE_RADIAL camera (k = 0), and its true (fx, fy, cx, cy)."""
-    scene = with_radial_distortion(handheld_indoor(seed=seed), k1)
+    scene = with_radial_distortion(handheld_indoor(seed=seed), k1, k2)
     contents = scene_contents(scene)
     width, height = scene.width, scene.height
     default = [1.2 * max(width, height), width / 2, height / 2, 0.0]
@@ -74,11 +74,33 @@ def test_k_estimated_with_the_intrinsics_from_the_default_camera(k1: float, seed
         # k must be within 2.5 of its std, and the std a fraction of k.
         (k_std,) = lens["std"]
         assert abs(k - k1) < 2.5 * k_std and k_std < 0.2 * abs(k1)
+        assert lens["richer_model"] is None  # a k1-only lens: RADIAL's k2 undetermined
     error = result.intrinsics - truth
     assert np.all(np.abs(error) / truth[0] < 0.015)
     for index, name in enumerate(NAMES):
         std = result.std[name]
         assert std is not None and abs(error[index]) < 3 * std, (name, error[index], std)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_lens_that_needs_k2_takes_k_from_the_radial_fit(seed: int) -> None:
+    """A lens with k1 = −0.2 and k2 = +0.1 behind COLMAP's default SIMPLE_RADIAL camera:
+    a k-only fit takes up k2 with the focal length (measured, seed 0: f 1.8 % off, k
+    −0.159). RADIAL's k2 is determined, so K comes from the RADIAL fit (0.8 %), the note
+    says to store the camera as RADIAL, and each std covers the distance between the
+    two fits."""
+    contents, truth = _default_camera_contents(-0.2, seed, k2=0.1)
+    (result,) = calibrate_contents(contents, CalibrationOptions(no_prior=True, seed=seed))
+    lens = result.lens_distortion
+    assert lens is not None and lens["present"] and lens["richer_model"] == "RADIAL"
+    assert "store the camera as RADIAL" in (result.diagnosis or "")
+    (k,) = result.distortion or [None]
+    assert k is not None and -0.2 < k < 0.0  # the stored model's k, written as it is
+    error = result.intrinsics - truth
+    assert abs(error[0]) / truth[0] < 0.012
+    for index, name in enumerate(NAMES):
+        std = result.std[name]
+        assert std is not None and abs(error[index]) < 2 * std, (name, error[index], std)
 
 
 def test_a_pinhole_camera_stays_pinhole_and_says_why_its_focal_length_is_uncertain() -> None:

@@ -290,6 +290,14 @@ def with_lens(
                 "widened to the model's closest camera; a model with more distortion "
                 "terms (RADIAL, OPENCV) would fit it"
             )
+        elif lens.richer_model is not None:
+            note = (
+                f"the {camera_model} camera cannot hold this lens's distortion (the "
+                f"tracks determine {lens.richer_model}'s k2): K from the "
+                f"{lens.richer_model} fit, k from the {camera_model} fit, each std "
+                f"widened to the other fit; store the camera as {lens.richer_model} "
+                "(or OPENCV)"
+            )
         return lens.intrinsics.copy(), std, [float(v) for v in lens.distortion], note
     shift = np.abs(lens.intrinsics - intrinsics) / focal_scale
     note = (

@@ -74,6 +74,10 @@ SCREEN_FACTOR = 0.5
 MIN_TRIPLETS = 2
 #: The model a pinhole camera's distortion is looked for with (its own focal lengths).
 _DETECTION_MODELS = {"SIMPLE_PINHOLE": "SIMPLE_RADIAL", "PINHOLE": "OPENCV"}
+#: A stored model and the next one with one more radial term, fitted where the stored
+#: model finds distortion: a real lens (a drone's, a wide phone's) often needs k2, and a
+#: k1-only fit then takes up the rest with the focal length (EuRoC cam0: f 12 % off).
+_RICHER_MODELS = {"SIMPLE_RADIAL": "RADIAL"}
 
 
 @dataclass
@@ -111,6 +115,11 @@ class LensDistortion:
             triplet fits it as well as a projective camera); the values are the warped
             estimate's and the warp's nearest polynomial, each std at least its
             distance from the model's closest camera.
+        richer_model: the model with one more radial term whose extra term the tracks
+            determine (beyond the test's threshold), so the stored model cannot hold
+            the lens; the intrinsics are that model's fit, the distortion the stored
+            model's, each std at least the distance between the two fits. None where
+            the stored model holds the lens (or has no richer model).
     """
 
     camera_model: str
@@ -123,6 +132,7 @@ class LensDistortion:
     agreeing: int
     screened: bool = False
     misfit: bool = False
+    richer_model: str | None = None
 
     @property
     def present(self) -> bool:
@@ -138,6 +148,7 @@ class LensDistortion:
             "std": [float(v) if np.isfinite(v) else None for v in self.distortion_std],
             "screened": self.screened,
             "misfit": self.misfit,
+            "richer_model": self.richer_model,
             "statistic": float(self.statistic),
             "threshold": float(self.threshold),
             "agreeing": self.agreeing,
@@ -226,7 +237,57 @@ def estimate_distortion(lens: DistortionInput) -> LensDistortion | None:
     adjustment = _adjust(lens, mask, intrinsics, setup.refined, camera_model)
     if adjustment is None:
         return None
-    return _fitted(lens, adjustment, intrinsics, significance)
+    fitted = _fitted(lens, adjustment, intrinsics, significance)
+    richer = _RICHER_MODELS.get(camera_model) if camera_model == camera.model else None
+    if richer is None or not fitted.present or fitted.misfit:
+        return fitted
+    return _with_richer_model(lens, mask, intrinsics, setup.refined, fitted, richer)
+
+
+def _with_richer_model(
+    lens: DistortionInput,
+    mask: np.ndarray,
+    intrinsics: np.ndarray,
+    refined: Refined,
+    fitted: LensDistortion,
+    richer: str,
+) -> LensDistortion:
+    """``fitted`` (the stored model's fit), or where ``richer``'s extra radial term is
+    determined (a Wald test at ``SIGNIFICANCE``: |k| / std beyond the normal quantile)
+    the intrinsics of ``richer``'s fit with the stored model's distortion.
+
+    The two fits are two answers to which camera made the tracks; the data reject the
+    stored model's, and the richer one may itself miss a term (tangential, k3), so each
+    std is at least the distance between them.
+    """
+    if lens.observed is not None:  # the warp's polynomial, its new term at 0
+        terms = len(CameraInfo.blank(richer).distortion)
+        start = np.zeros(terms)
+        start[: len(lens.observed.distortion)] = lens.observed.distortion
+        lens = replace(lens, observed=replace(lens.observed, distortion=start))
+    adjustment = _adjust(lens, mask, intrinsics, refined, richer, with_cost_without=False)
+    if adjustment is None:
+        return fitted
+    wider = _fitted(lens, adjustment, intrinsics, SIGNIFICANCE)
+    extra, extra_std = wider.distortion[-1], wider.distortion_std[-1]
+    if wider.misfit or not (np.isfinite(extra_std) and extra_std > 0):
+        return fitted
+    if (extra / extra_std) ** 2 <= chi2.isf(SIGNIFICANCE, 1):
+        return fitted
+    shared = len(fitted.distortion)
+    return replace(
+        fitted,
+        intrinsics=wider.intrinsics,
+        intrinsics_std=np.fmax(
+            np.fmax(wider.intrinsics_std, fitted.intrinsics_std),
+            np.abs(wider.intrinsics - fitted.intrinsics),
+        ),
+        distortion_std=np.fmax(
+            fitted.distortion_std, np.abs(wider.distortion[:shared] - fitted.distortion)
+        ),
+        agreeing=wider.agreeing,
+        richer_model=richer,
+    )
 
 
 def _screened(
@@ -271,10 +332,12 @@ def _adjust(
     intrinsics: np.ndarray,
     refined: Refined,
     camera_model: str,
+    *,
+    with_cost_without: bool = True,
 ) -> _Adjustment | None:
     """The agreeing triplets adjusted with the camera's distortion free, the cost
-    without it, and the adjustment's covariance; None where too few triplets agree or
-    Ceres fails."""
+    without it (NaN unless ``with_cost_without``), and the adjustment's covariance;
+    None where too few triplets agree or Ceres fails."""
     camera, observed = lens.camera, lens.observed
     fits = observed_tracks(lens.tensors, lens.tracks, lens.start, MAX_TRACKS, lens.workers)
     raw = None
@@ -311,7 +374,11 @@ def _adjust(
         if agreement is None:
             return None
         agreeing = agreement.agreeing
-        without = cost_without_distortion(shared, agreeing, refined)
+        without = (
+            cost_without_distortion(shared, agreeing, refined)
+            if with_cost_without
+            else float("nan")
+        )
         # At the optimum already: the covariance of the adjustment with its gauge fixed.
         adjuster = shared.adjuster(agreeing, with_distortion, fix_scale=True)
         covariance = pycolmap.estimate_ba_covariance(
