@@ -2,11 +2,11 @@
 
 COLMAP aborts the whole process on some failures (an exception thrown in a worker thread:
 a full disk during feature extraction), which no Python code can catch. Such work runs in
-a child process: the child calls
-:func:`die_with_parent` first (Linux's ``PR_SET_PDEATHSIG``; not as ``preexec_fn``,
-which is unsafe in a process with threads), and :func:`child_process` ends it (SIGTERM,
-then SIGKILL) whenever the block is left early, by an error or by Ctrl-C/SIGTERM/SIGHUP
-here, so the command's own handling of those signals stays in charge.
+a child process: the child calls :func:`die_with_parent` first (Linux's
+``PR_SET_PDEATHSIG``; not as ``preexec_fn``, which is unsafe in a process with threads),
+and :func:`child_process` ends it (SIGTERM, then SIGKILL) whenever the block is left
+early, by an error or by Ctrl-C/SIGTERM/SIGHUP here, so the command's own handling of
+those signals stays in charge.
 """
 
 from __future__ import annotations

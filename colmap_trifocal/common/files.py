@@ -212,6 +212,26 @@ def can_create_in(folder: Path) -> bool:
     return True
 
 
+def missing_folders(path: Path) -> list[Path]:
+    """``path`` and its parents that do not exist yet, deepest first: what a
+    ``mkdir(parents=True)`` of ``path`` makes, for :func:`remove_if_empty` to undo."""
+    missing = []
+    while not path.exists() and path != path.parent:
+        missing.append(path)
+        path = path.parent
+    return missing
+
+
+def remove_if_empty(folders: list[Path]) -> None:
+    """Remove the folders a command made (deepest first) while they are empty; stop at
+    the first that is not (a partial result, another's file: kept)."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:
+            return
+
+
 def write_text_atomically(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` without ever leaving a truncated file behind.
 

@@ -23,7 +23,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from ..common.errors import CalibrationError
-from ..common.files import can_create_in
+from ..common.files import can_create_in, missing_folders, remove_if_empty
 
 #: What a run writes into the workspace (``--overwrite`` removes exactly these).
 WORKSPACE_OUTPUTS = ("database.db", "sparse", "report.json")
@@ -65,7 +65,7 @@ def open_workspace(workspace: Path, *, overwrite: bool) -> Iterator[Path]:
     workspace = Path(workspace)
     if workspace.exists() and not workspace.is_dir():
         raise CalibrationError(f"workspace is not a folder: {workspace}")
-    created = _missing_folders(workspace)
+    created = missing_folders(workspace)
     workspace.mkdir(parents=True, exist_ok=True)
     try:
         if not can_create_in(workspace):
@@ -74,26 +74,8 @@ def open_workspace(workspace: Path, *, overwrite: bool) -> Iterator[Path]:
             prepare_workspace(workspace, overwrite=overwrite)
             yield workspace
     except BaseException:
-        _remove_if_empty(created)  # a refused run leaves no empty workspace behind
+        remove_if_empty(created)  # a refused run leaves no empty workspace behind
         raise
-
-
-def _missing_folders(path: Path) -> list[Path]:
-    """``path`` and its parents that do not exist yet, deepest first."""
-    missing = []
-    while not path.exists() and path != path.parent:
-        missing.append(path)
-        path = path.parent
-    return missing
-
-
-def _remove_if_empty(folders: list[Path]) -> None:
-    """Remove the folders this run made (deepest first) while they are empty."""
-    for folder in folders:
-        try:
-            folder.rmdir()
-        except OSError:  # something in it (a partial result, another's file): kept
-            return
 
 
 @contextmanager

@@ -17,7 +17,7 @@ import numpy as np
 import pycolmap
 
 from ..common.errors import CalibrationError
-from ..common.files import remove_database_files
+from ..common.files import missing_folders, remove_database_files, remove_if_empty
 from ..common.pycolmap_child import call_in_child
 from ..intrinsics.options import Method
 from ..intrinsics.results import PARAMETER_NAMES
@@ -116,11 +116,7 @@ def _made_or_removed(
         )
     except BaseException:
         remove_database_files(database)
-        for folder in created:
-            try:
-                folder.rmdir()
-            except OSError:
-                break
+        remove_if_empty(created)
         raise
     return np.array(truth), np.array(prior)
 
@@ -135,11 +131,7 @@ def run_demo(seed: int = 0, workdir: Path | None = None, method: Method = "msac-
         refuse_existing_demo(Path(workdir))
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(workdir) if workdir is not None else Path(tmp)
-        created = []
-        missing = folder
-        while not missing.exists() and missing != missing.parent:
-            created.append(missing)
-            missing = missing.parent
+        created = missing_folders(folder)
         folder.mkdir(parents=True, exist_ok=True)
         database = folder / "demo.db"
         truth, prior = _made_or_removed(database, seed, created)
