@@ -128,7 +128,9 @@ def execute(
     log = workdir / ".kernel" / "stderr.log"
     start = time.perf_counter()
     with open(log, "w") as stderr:
-        client.execute(env={**os.environ, **(env or {})}, stderr=stderr)
+        # cleanup_kc: shut the kernel down at the end. nbclient keeps a kernel whose
+        # manager it was given alive until the process exits (idle, it still polls).
+        client.execute(env={**os.environ, **(env or {})}, stderr=stderr, cleanup_kc=True)
     seconds = time.perf_counter() - start
     print(f"{name}: {seconds:.1f} s")
     return Executed(notebook, seconds, log.read_text(), workdir)
