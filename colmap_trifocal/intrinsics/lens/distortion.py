@@ -76,7 +76,7 @@ MIN_TRIPLETS = 2
 _DETECTION_MODELS = {"SIMPLE_PINHOLE": "SIMPLE_RADIAL", "PINHOLE": "OPENCV"}
 #: A stored model and the next one with one more radial term, fitted where the stored
 #: model finds distortion: a real lens (a drone's, a wide phone's) often needs k2, and a
-#: k1-only fit then takes up the rest with the focal length (EuRoC cam0: f 12 % off).
+#: k1-only fit then takes up the rest with the focal length (docs/lenses.md).
 _RICHER_MODELS = {"SIMPLE_RADIAL": "RADIAL"}
 
 
@@ -274,7 +274,7 @@ def _with_richer_model(
         return fitted
     if (extra / extra_std) ** 2 <= chi2.isf(SIGNIFICANCE, 1):
         return fitted
-    shared = len(fitted.distortion)
+    stored_terms = len(fitted.distortion)
     return replace(
         fitted,
         intrinsics=wider.intrinsics,
@@ -283,7 +283,7 @@ def _with_richer_model(
             np.abs(wider.intrinsics - fitted.intrinsics),
         ),
         distortion_std=np.fmax(
-            fitted.distortion_std, np.abs(wider.distortion[:shared] - fitted.distortion)
+            fitted.distortion_std, np.abs(wider.distortion[:stored_terms] - fitted.distortion)
         ),
         agreeing=wider.agreeing,
         richer_model=richer,
