@@ -18,6 +18,7 @@ from colmap_trifocal.database.cameras import CameraInfo
 from colmap_trifocal.database.features import build_database
 from colmap_trifocal.datasets.strecha import ground_truth_intrinsics, scene_images
 from colmap_trifocal.intrinsics.api import write_calibrations
+from colmap_trifocal.intrinsics.lens import distortion
 from colmap_trifocal.synthetic.database import CAMERA_ID, scene_contents, write_database
 from colmap_trifocal.synthetic.facade import facade_scene
 from colmap_trifocal.synthetic.lenses import (
@@ -101,6 +102,27 @@ def test_a_lens_that_needs_k2_takes_k_from_the_radial_fit(seed: int) -> None:
     for index, name in enumerate(NAMES):
         std = result.std[name]
         assert std is not None and abs(error[index]) < 2 * std, (name, error[index], std)
+
+
+def test_a_decisive_lens_skips_the_pinhole_fit_and_reports_the_same_camera(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Where pycolmap's covariance puts k beyond ``DECISIVE`` times the test's threshold,
+    the pinhole fit C₀ is not run: the statistic is the Wald one, and the decision, the
+    camera, k and every std are those of the run that computes C₀."""
+    contents, _ = _default_camera_contents(-0.2, 0, k2=0.1)
+    options = CalibrationOptions(no_prior=True, seed=0)
+    (decisive,) = calibrate_contents(contents, options)
+    factor = distortion.DECISIVE
+    monkeypatch.setattr(distortion, "DECISIVE", np.inf)
+    (tested,) = calibrate_contents(contents, options)
+    fast, full = decisive.lens_distortion, tested.lens_distortion
+    assert fast is not None and full is not None and fast["present"] and full["present"]
+    assert fast["statistic"] > factor * fast["threshold"]
+    assert fast["statistic"] != full["statistic"] > full["threshold"]
+    assert decisive.intrinsics.tolist() == tested.intrinsics.tolist()
+    assert decisive.std == tested.std and decisive.distortion == tested.distortion
+    assert fast["std"] == full["std"] and fast["richer_model"] == full["richer_model"]
 
 
 def test_a_pinhole_camera_stays_pinhole_and_says_why_its_focal_length_is_uncertain() -> None:

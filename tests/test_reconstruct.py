@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,7 @@ from colmap_trifocal import (
     calibrate_database,
     reconstruct,
 )
-from colmap_trifocal.datasets.strecha import ground_truth_intrinsics, scene_images
+from colmap_trifocal.datasets.strecha import ground_truth_intrinsics
 from colmap_trifocal.reconstruction.mapping import camera_intrinsics
 from colmap_trifocal.synthetic.demo import make_demo_database
 
@@ -166,16 +167,15 @@ def test_bad_inputs_raise_calibration_error(demo: tuple[Path, np.ndarray], tmp_p
 @pytest.mark.slow  # builds the scene's database on first use (minutes), maps 11 images
 @pytest.mark.real_data
 def test_readme_lines_on_fountain_colmap_default_database(
-    database_cache: DatabaseCache, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    real_scene_database: Callable[[str, str], Path],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """COLMAP's default database of fountain-P11 (one SIMPLE_RADIAL camera per image at
-    COLMAP's guess): the README's lines end ≤ 0.15 % from the ground truth, every image on
-    one shared camera, all 11 registered."""
+    COLMAP's guess; the real tier's, so built once): the README's lines end ≤ 0.15 % from
+    the ground truth, every image on one shared camera, all 11 registered."""
     folder = strecha_root() / "fountain-P11"
-    cached = database_cache.get(
-        folder / "images", scene_images(folder), camera_model="SIMPLE_RADIAL", camera_mode="auto"
-    )
-    DatabaseCache.copy(cached, tmp_path / "database.db")
+    DatabaseCache.copy(real_scene_database("fountain-P11", "default"), tmp_path / "database.db")
     namespace = run_readme(tmp_path, monkeypatch)
     reconstruction = namespace["reconstruction"]
     assert reconstruction.num_reg_images() == 11

@@ -17,7 +17,9 @@ names the cause. Two rounds of "adjust every triplet at
 the camera, keep those with λ < τ², adjust them together with the camera free". The
 distortion counts as present when the likelihood ratio of the fits with and without
 it, ``(C₀ − C_k) / σ²``, exceeds the χ² quantile ``1 − SIGNIFICANCE`` of its number of
-parameters; the std comes from pycolmap's covariance of the adjustment
+parameters (where the adjustment's own Wald statistic is ``DECISIVE`` times beyond that
+quantile, the pinhole fit C₀ is not run: a strong lens's crawls for seconds to confirm
+it); the std comes from pycolmap's covariance of the adjustment
 (:func:`pycolmap.estimate_ba_covariance`, each triplet's scale fixed by one of its
 points), scaled by σ² of the residuals, or for
 ``SIMPLE_RADIAL`` / ``RADIAL`` the delete-a-group-of-images jackknife where it is larger
@@ -40,7 +42,7 @@ from scipy.stats import chi2
 from ...common.log import keep_colmap_quiet
 from ...database.cameras import CameraInfo
 from ...geometry.tensor_estimation import TripletTensor
-from ..polish.calibrated_tracks import inlier_pixels, observed_tracks
+from ..polish.calibrated_tracks import Observed, inlier_pixels, observed_tracks
 from ..polish.camera_setup import CameraSetup, Refined, pycolmap_camera_setup
 from ..polish.shared_camera import (
     Agreement,
@@ -67,6 +69,11 @@ SIGNIFICANCE = 0.05
 #: ... and in a pinhole camera, where the finding is only a warning and OPENCV's
 #: tangential terms (p1, p2) also take up systematic errors that are not the lens's.
 PINHOLE_SIGNIFICANCE = 1e-6
+#: The pinhole fit C₀ is skipped, and the distortion present, where the Wald statistic of
+#: pycolmap's covariance exceeds the test's threshold this many times: the likelihood
+#: ratio is then far beyond it too (the Wald statistic overstates it on a real lens, by
+#: far less than this factor: docs/lenses.md).
+DECISIVE = 100.0
 #: The screen skips the adjustment where one Gauss–Newton step predicts a likelihood
 #: ratio below this fraction of the test's one-parameter threshold.
 SCREEN_FACTOR = 0.5
@@ -104,7 +111,9 @@ class LensDistortion:
         distortion: the model's extra parameters (k1, ...), as COLMAP orders them.
         distortion_std: (k,) their std.
         statistic: likelihood ratio ``(C₀ − C_k) / σ²`` of the fits without and with
-            the distortion (χ² with k degrees of freedom where the lens has none).
+            the distortion (χ² with k degrees of freedom where the lens has none); where
+            the distortion is decisive (``DECISIVE``), the Wald statistic instead (C₀ is
+            not computed); NaN for a fit that was not tested.
         threshold: the statistic above which the distortion counts as present.
         agreeing: triplets adjusted together (with ``screened``: the tensors the
             screen read).
@@ -200,13 +209,12 @@ class DistortionInput:
 @dataclass(frozen=True)
 class _Adjustment:
     """The lens stage's adjustment: the shared camera, its model, what it refines, the
-    agreeing triplets, the cost without distortion and pycolmap's covariance."""
+    agreeing triplets and pycolmap's covariance."""
 
     shared: SharedCamera
     camera_model: str
     refined: Refined
     agreement: Agreement
-    without: float
     covariance: pycolmap.BACovariance | None
 
 
@@ -234,18 +242,21 @@ def estimate_distortion(lens: DistortionInput) -> LensDistortion | None:
         screened = _screened(lens, mask, intrinsics, setup, camera_model, significance)
         if screened is not None:
             return screened
-    adjustment = _adjust(lens, mask, intrinsics, setup.refined, camera_model)
+    # Each tensor's tracks and projective cost, the same for every model fitted below.
+    fits = observed_tracks(lens.tensors, lens.tracks, lens.start, MAX_TRACKS, lens.workers)
+    adjustment = _adjust(lens, fits, mask, intrinsics, setup.refined, camera_model)
     if adjustment is None:
         return None
     fitted = _fitted(lens, adjustment, intrinsics, significance)
     richer = _RICHER_MODELS.get(camera_model) if camera_model == camera.model else None
     if richer is None or not fitted.present or fitted.misfit:
         return fitted
-    return _with_richer_model(lens, mask, intrinsics, setup.refined, fitted, richer)
+    return _with_richer_model(lens, fits, mask, intrinsics, setup.refined, fitted, richer)
 
 
 def _with_richer_model(
     lens: DistortionInput,
+    fits: list[Observed],
     mask: np.ndarray,
     intrinsics: np.ndarray,
     refined: Refined,
@@ -265,10 +276,10 @@ def _with_richer_model(
         start = np.zeros(terms)
         start[: len(lens.observed.distortion)] = lens.observed.distortion
         lens = replace(lens, observed=replace(lens.observed, distortion=start))
-    adjustment = _adjust(lens, mask, intrinsics, refined, richer, with_cost_without=False)
+    adjustment = _adjust(lens, fits, mask, intrinsics, refined, richer)
     if adjustment is None:
         return fitted
-    wider = _fitted(lens, adjustment, intrinsics, SIGNIFICANCE)
+    wider = _fitted(lens, adjustment, intrinsics, significance=None)
     extra, extra_std = wider.distortion[-1], wider.distortion_std[-1]
     if wider.misfit or not (np.isfinite(extra_std) and extra_std > 0):
         return fitted
@@ -328,18 +339,15 @@ def _screened(
 
 def _adjust(
     lens: DistortionInput,
+    fits: list[Observed],
     mask: np.ndarray,
     intrinsics: np.ndarray,
     refined: Refined,
     camera_model: str,
-    *,
-    with_cost_without: bool = True,
 ) -> _Adjustment | None:
-    """The agreeing triplets adjusted with the camera's distortion free, the cost
-    without it (NaN unless ``with_cost_without``), and the adjustment's covariance;
-    None where too few triplets agree or Ceres fails."""
+    """The agreeing triplets (of ``fits``) adjusted with the camera's distortion free,
+    and the adjustment's covariance; None where too few triplets agree or Ceres fails."""
     camera, observed = lens.camera, lens.observed
-    fits = observed_tracks(lens.tensors, lens.tracks, lens.start, MAX_TRACKS, lens.workers)
     raw = None
     if observed is not None:
         keypoints = [inlier_pixels(fit.tensor, observed.tracks, MAX_TRACKS) for fit in fits]
@@ -373,25 +381,23 @@ def _adjust(
         )
         if agreement is None:
             return None
-        agreeing = agreement.agreeing
-        without = (
-            cost_without_distortion(shared, agreeing, refined)
-            if with_cost_without
-            else float("nan")
-        )
         # At the optimum already: the covariance of the adjustment with its gauge fixed.
-        adjuster = shared.adjuster(agreeing, with_distortion, fix_scale=True)
+        adjuster = shared.adjuster(agreement.agreeing, with_distortion, fix_scale=True)
         covariance = pycolmap.estimate_ba_covariance(
             pycolmap.BACovarianceOptions(), shared.reconstruction, adjuster
         )
-    return _Adjustment(shared, camera_model, refined, agreement, without, covariance)
+    return _Adjustment(shared, camera_model, refined, agreement, covariance)
 
 
 def _fitted(
-    lens: DistortionInput, adjustment: _Adjustment, intrinsics: np.ndarray, significance: float
+    lens: DistortionInput,
+    adjustment: _Adjustment,
+    intrinsics: np.ndarray,
+    significance: float | None,
 ) -> LensDistortion:
     """The stage's result from its adjustment: the fitted camera, its std (pycolmap's
-    covariance and the image jackknife, the larger), the likelihood-ratio statistic."""
+    covariance and the image jackknife, the larger), and the test's statistic at
+    ``significance`` (None: no test, the statistic NaN)."""
     camera, observed = lens.camera, lens.observed
     shared, agreeing = adjustment.shared, adjustment.agreement.agreeing
     misfit = adjustment.agreement.fallback
@@ -409,6 +415,12 @@ def _fitted(
     params_std = camera_params_std(
         adjustment.covariance, adjusted, variance, sorted(refined_idxs + extra)
     )
+    threshold = statistic = float("nan")
+    if significance is not None:
+        threshold = float(chi2.isf(significance, len(extra)))
+        statistic = _test_statistic(
+            adjustment, params[extra], params_std[extra], variance, threshold
+        )
     fitted = CameraInfo(
         camera.camera_id, adjustment.camera_model, camera.width, camera.height, params
     )
@@ -434,11 +446,30 @@ def _fitted(
         intrinsics_std=intrinsics_std,
         distortion=distortion_reported,
         distortion_std=distortion_std,
-        statistic=(adjustment.without - with_distortion) / variance,
-        threshold=float(chi2.isf(significance, len(extra))),
+        statistic=statistic,
+        threshold=threshold,
         agreeing=len(agreeing),
         misfit=misfit,
     )
+
+
+def _test_statistic(
+    adjustment: _Adjustment,
+    distortion: np.ndarray,
+    distortion_std: np.ndarray,
+    variance: float,
+    threshold: float,
+) -> float:
+    """The distortion test's statistic: the Wald statistic of pycolmap's covariance where
+    it exceeds ``DECISIVE`` times the ``threshold`` (the largest z² of one term, a lower
+    bound of the terms' joint one), else the likelihood ratio ``(C₀ − C_k) / σ²``."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        wald = float(np.max((distortion / distortion_std) ** 2))
+    if np.isfinite(wald) and wald > DECISIVE * threshold:
+        return wald
+    shared, agreeing = adjustment.shared, adjustment.agreement.agreeing
+    without = cost_without_distortion(shared, agreeing, adjustment.refined)
+    return (without - shared.cost(agreeing)) / variance
 
 
 def _lens_setup(free_parameters: FreeParameters) -> CameraSetup | None:
