@@ -12,8 +12,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pycolmap
 import pytest
 
+from colmap_trifocal.cli.run import format_report
 from colmap_trifocal.database.cameras import CameraInfo
 from colmap_trifocal.reconstruction.workflow import RunOptions, run_pipeline
 from colmap_trifocal.synthetic.database import scene_contents, write_database
@@ -55,3 +57,30 @@ def test_run_estimates_the_distortion_and_the_intrinsics(
     assert np.all(np.abs(refined / truth - 1) < 0.015)
     (k,) = camera["distortion"]
     assert abs(k - K1) < 0.01
+    assert camera["mapped_model"] == "SIMPLE_RADIAL"  # one term holds this lens
+
+
+def test_run_maps_a_lens_that_needs_k2_in_the_model_that_holds_it(tmp_path: Path) -> None:
+    """k1 = −0.2, k2 = +0.1 behind COLMAP's default SIMPLE_RADIAL camera: the tracks
+    determine RADIAL's k2, so the workspace maps the camera as RADIAL from that fit's
+    (f, cx, cy, k1, k2), says so, and leaves the user's database as it was."""
+    scene = with_radial_distortion(handheld_indoor(seed=0), -0.2, 0.1)
+    contents = scene_contents(scene)
+    width, height = scene.width, scene.height
+    default = [1.2 * max(width, height), width / 2, height / 2, 0.0]
+    contents.cameras[1] = CameraInfo(1, "SIMPLE_RADIAL", width, height, default)
+    database = tmp_path / "database.db"
+    write_database(contents, database)
+    before = database.read_bytes()
+    report = run_pipeline(None, tmp_path / "ws", RunOptions(database=database)).to_json()
+    camera = report["cameras"][0]
+    assert camera["trifocal_distortion"]["richer_model"] == "RADIAL"
+    assert camera["model"] == "SIMPLE_RADIAL" and camera["mapped_model"] == "RADIAL"
+    k1, k2 = camera["distortion"]
+    assert abs(k1 + 0.2) < 0.02 and abs(k2 - 0.1) < 0.03
+    refined = np.array([camera["refined"][n] for n in ("fx", "fy", "cx", "cy")])
+    assert np.all(np.abs(refined - scene.intrinsics) < 0.01 * scene.intrinsics[0])
+    assert "mapped as RADIAL" in format_report(report)
+    assert database.read_bytes() == before
+    with pycolmap.Database.open(str(tmp_path / "ws" / "database.db")) as workspace:
+        assert {c.model.name for c in workspace.read_all_cameras()} == {"RADIAL"}

@@ -185,6 +185,13 @@ def format_report(report: dict) -> str:
         for label in ("trifocal", "refined", "difference"):
             values = " ".join(f"{camera[label][name]:>10.2f}" for name in PARAMETER_NAMES)
             lines.append(f"{camera['camera_id']:>6} {label:>9} {values}")
+    for camera in report["cameras"]:
+        if camera.get("mapped_model", camera["model"]) != camera["model"]:
+            params = ", ".join(f"{v:+.4f}" for v in camera["distortion"])
+            lines.append(
+                f"camera {camera['camera_id']} mapped as {camera['mapped_model']} (distortion "
+                f"{params}): the tracks determine a lens {camera['model']} cannot hold"
+            )
     lines.append(
         "seconds: " + ", ".join(f"{stage} {t:.1f}" for stage, t in report["seconds"].items())
     )

@@ -96,18 +96,26 @@ def _check_room(path: Path, *, backup: bool) -> None:
 
 
 def write_intrinsics(
-    path: Path, cameras: dict[int, CameraInfo], *, backup: bool = True
+    path: Path,
+    cameras: dict[int, CameraInfo],
+    *,
+    backup: bool = True,
+    change_models: bool = False,
 ) -> Path | None:
     """Write the cameras' params into the COLMAP database at ``path`` (in place).
 
-    Only the ``params`` column of the given cameras changes (see the module docstring for
-    the order of events and what an interrupt leaves behind).
+    Only the ``params`` column of the given cameras changes, and with ``change_models``
+    their ``model`` (see the module docstring for the order of events and what an
+    interrupt leaves behind).
 
     Args:
         path: COLMAP database.
-        cameras: camera_id -> camera with the new params (same model and size as stored).
+        cameras: camera_id -> camera with the new params (same model and size as stored;
+            with ``change_models`` the same size).
         backup: first copy the database to ``<name>.bak`` (or ``.bak1``, ``.bak2``, ... if
             taken; an existing backup is never overwritten).
+        change_models: store each camera's model too: for a working copy this tool owns
+            (``run`` maps a lens in the model that holds it); never a user's database.
 
     Returns:
         The backup's path, or None if no backup was made (``backup=False`` or no cameras).
@@ -130,7 +138,7 @@ def write_intrinsics(
         with closing(connect(path, "mode=rw")) as con:
             check_tables(con, path)
             con.execute("BEGIN IMMEDIATE")
-            _write_and_commit(con, path, cameras, made)
+            _write_and_commit(con, path, cameras, made, change_models=change_models)
         # Read-write although it only reads: as the last connection it checkpoints and
         # removes the -wal and -shm files on closing, which a read-only one cannot.
         with closing(connect(path, "mode=rw")) as fresh:
@@ -142,7 +150,12 @@ def write_intrinsics(
 
 
 def _write_and_commit(
-    con: sqlite3.Connection, path: Path, cameras: dict[int, CameraInfo], backup: Backup | None
+    con: sqlite3.Connection,
+    path: Path,
+    cameras: dict[int, CameraInfo],
+    backup: Backup | None,
+    *,
+    change_models: bool = False,
 ) -> None:
     """Inside the caller's ``BEGIN IMMEDIATE``: check, back up, UPDATE, COMMIT.
 
@@ -154,10 +167,10 @@ def _write_and_commit(
     try:
         for stale in remove_temporaries(path):
             logger.info("removed %s: the copy of a backup that did not finish", stale)
-        _check_cameras_match(con, cameras, path)
+        _check_cameras_match(con, cameras, path, same_model=not change_models)
         if backup is not None:
             make_backup(path, backup)
-        _update_params(con, cameras)
+        _update_params(con, cameras, with_model=change_models)
         with interrupts_deferred():
             _commit(con)
     except BaseException as exc:
@@ -205,9 +218,10 @@ def _check_params(cameras: dict[int, CameraInfo]) -> None:
 
 
 def _check_cameras_match(
-    con: sqlite3.Connection, cameras: dict[int, CameraInfo], path: Path
+    con: sqlite3.Connection, cameras: dict[int, CameraInfo], path: Path, *, same_model: bool
 ) -> None:
-    """Each camera must exist in the database with the same model and image size."""
+    """Each camera must exist in the database with the same image size (and with
+    ``same_model`` the same model)."""
     rows = {
         int(cid): (int(model), int(width), int(height))
         for cid, model, width, height in con.execute(
@@ -220,6 +234,8 @@ def _check_cameras_match(
         if camera_id not in rows:
             raise CalibrationError(f"camera {camera_id} is not in the database: {path}")
         expected = (int(pycolmap.CameraModelId(cam.model)), cam.width, cam.height)
+        if not same_model:
+            expected = (rows[camera_id][0], *expected[1:])
         if rows[camera_id] != expected:
             raise CalibrationError(
                 f"camera {camera_id} in the database differs in model or size from the "
@@ -227,12 +243,20 @@ def _check_cameras_match(
             )
 
 
-def _update_params(con: sqlite3.Connection, cameras: dict[int, CameraInfo]) -> None:
-    """The UPDATE of ``cameras.params`` (inside the caller's transaction)."""
+def _update_params(
+    con: sqlite3.Connection, cameras: dict[int, CameraInfo], *, with_model: bool
+) -> None:
+    """The UPDATE of ``cameras.params`` (and ``model``: ``with_model``), inside the
+    caller's transaction."""
     con.executemany(
         "UPDATE cameras SET params = ? WHERE camera_id = ?",
         [(_params_blob(cam), camera_id) for camera_id, cam in cameras.items()],
     )
+    if with_model:
+        con.executemany(
+            "UPDATE cameras SET model = ? WHERE camera_id = ?",
+            [(int(pycolmap.CameraModelId(c.model)), camera_id) for camera_id, c in cameras.items()],
+        )
 
 
 def _verify_written(
@@ -241,8 +265,11 @@ def _verify_written(
     """Read the params back on a fresh connection, after COMMIT, and compare them bit for
     bit with what was written: a write that reports success must be on disk."""
     for camera_id, cam in cameras.items():
-        row = con.execute("SELECT params FROM cameras WHERE camera_id = ?", (camera_id,)).fetchone()
-        if row is None or bytes(row[0]) != _params_blob(cam):
+        row = con.execute(
+            "SELECT params, model FROM cameras WHERE camera_id = ?", (camera_id,)
+        ).fetchone()
+        model = int(pycolmap.CameraModelId(cam.model))
+        if row is None or bytes(row[0]) != _params_blob(cam) or int(row[1]) != model:
             kept = "" if backup is None else f"; backup: {backup.published}"
             raise CalibrationError(
                 f"the database does not hold camera {camera_id}'s new parameters after the "

@@ -82,8 +82,10 @@ class Diagnostics:
         lens_distortion: the lens distortion the triplets' calibrated bundle adjustment
             found (:mod:`intrinsics.lens.distortion`): ``present``, ``params`` and
             ``std`` (COLMAP's order of the model's extra parameters), the
-            likelihood-ratio ``statistic`` and its ``threshold``. None when the stored
-            distortion was taken as it is.
+            likelihood-ratio ``statistic`` and its ``threshold``, and where the stored
+            model cannot hold the lens the model that can (``richer_model``) with its
+            fitted distortion (``richer_params``). None when the stored distortion was
+            taken as it is.
         triplets: every triplet's tensor and how the constraints judged it.
         tensors: the tensors themselves (not written to JSON).
     """

@@ -216,6 +216,32 @@ class CameraCalibration:
             raise CalibrationError(f"camera {self.camera_id}: the result has no stored camera")
         return {c.camera_id: self.written_camera(c) for c in self.group_cameras}
 
+    def mapping_cameras(self) -> dict[int, CameraInfo]:
+        """camera_id -> the camera to map the group with: :meth:`updated_cameras`, except
+        where the tracks determine a lens model with one more radial term than the
+        stored one (``lens_distortion["richer_model"]``, e.g. RADIAL behind COLMAP's
+        default SIMPLE_RADIAL) on a camera that holds no distortion: that model, with
+        the estimate (that model's fit) and its fitted distortion.
+
+        A mapper refining a one-term model on such a lens trades the focal length
+        against k (docs/lenses.md); in the richer model it refines the lens it sees.
+        """
+        cameras = self.updated_cameras()
+        lens = self.lens_distortion or {}
+        model, params = lens.get("richer_model"), lens.get("richer_params")
+        # One group, one model (merged cameras share it): all undistorted, or none changes.
+        if model is None or params is None or not all(c.is_undistorted for c in self.group_cameras):
+            return cameras
+        blank = CameraInfo.blank(model).params
+        return {
+            camera_id: CameraInfo(
+                camera_id, model, camera.width, camera.height, blank, camera.has_prior_focal_length
+            )
+            .with_intrinsics(self.fx, self.fy, self.cx, self.cy)
+            .with_distortion(params)
+            for camera_id, camera in cameras.items()
+        }
+
     @property
     def camera(self) -> pycolmap.Camera:
         """The estimate as a new ``pycolmap.Camera``.

@@ -188,10 +188,26 @@ def calibrate_for_mapping(
 
     Every camera of each group gets the estimate as its starting intrinsics (also a group
     the images determined nothing of: the start is the best it has), and with ``merge``
-    the images of each group are moved onto its first camera (:func:`merge_group_cameras`).
+    (mapping from scratch) the model that holds its lens
+    (:meth:`.CameraCalibration.mapping_cameras`) and the images of each group are moved
+    onto its first camera (:func:`merge_group_cameras`). Without ``merge`` (a given
+    model's cameras) every camera keeps its stored model.
     """
     calibrations = calibrate_contents(contents, options)
-    write_intrinsics(database, updated_cameras(calibrations, determined_only=False), backup=False)
+    if merge:
+        cameras = {i: c for r in calibrations for i, c in r.mapping_cameras().items()}
+    else:
+        cameras = updated_cameras(calibrations, determined_only=False)
+    write_intrinsics(database, cameras, backup=False, change_models=merge)
+    for camera_id, camera in cameras.items():
+        stored = contents.cameras[camera_id]
+        if camera.model != stored.model:
+            logger.info(
+                "camera %d mapped as %s: the tracks determine a lens %s cannot hold",
+                camera_id,
+                camera.model,
+                stored.model,
+            )
     if merge:
         merge_group_cameras(database, [list(c.camera_ids) for c in calibrations])
     return calibrations

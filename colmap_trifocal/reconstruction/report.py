@@ -99,8 +99,10 @@ def camera_report(
     """One camera's object of the report: TrifocalCalib's estimate (``trifocal``, its
     std, distortion, what is determined and why) beside the reconstruction's
     (``refined``: the mean over the group's camera ids in it), their difference
-    (refined − trifocal, pixels), its mean relative size, and the camera's
-    distortion parameters after mapping (COLMAP's order; ``[]`` for pinhole models).
+    (refined − trifocal, pixels), its mean relative size, and the camera's model and
+    distortion parameters after mapping (COLMAP's order; ``[]`` for pinhole models): the
+    model is the stored one's, or the one that holds the lens where the tracks determine
+    it (:meth:`.CameraCalibration.mapping_cameras`).
 
     Args:
         registered: camera id -> registered images (:func:`.registered_images_per_camera`).
@@ -124,6 +126,7 @@ def camera_report(
         "refined": _named(refined),
         "difference": _named(refined - estimate),
         "relative_difference": float(np.mean(np.abs(refined / estimate - 1))),
+        "mapped_model": reconstruction.cameras[in_model[0]].model.name,
         "distortion": np.mean(distortion, axis=0).tolist(),
         "num_registered_images": sum(registered.get(c, 0) for c in ids),
     }

@@ -129,6 +129,8 @@ class LensDistortion:
             the lens; the intrinsics are that model's fit, the distortion the stored
             model's, each std at least the distance between the two fits. None where
             the stored model holds the lens (or has no richer model).
+        richer_distortion: that model's fitted distortion (COLMAP's order), None
+            without ``richer_model``: with ``intrinsics`` the camera to map with.
     """
 
     camera_model: str
@@ -142,6 +144,7 @@ class LensDistortion:
     screened: bool = False
     misfit: bool = False
     richer_model: str | None = None
+    richer_distortion: np.ndarray | None = None
 
     @property
     def present(self) -> bool:
@@ -158,6 +161,9 @@ class LensDistortion:
             "screened": self.screened,
             "misfit": self.misfit,
             "richer_model": self.richer_model,
+            "richer_params": None
+            if self.richer_distortion is None
+            else [float(v) for v in self.richer_distortion],
             "statistic": float(self.statistic),
             "threshold": float(self.threshold),
             "agreeing": self.agreeing,
@@ -298,6 +304,7 @@ def _with_richer_model(
         ),
         agreeing=wider.agreeing,
         richer_model=richer,
+        richer_distortion=wider.distortion.copy(),
     )
 
 
