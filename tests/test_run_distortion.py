@@ -15,6 +15,7 @@ import numpy as np
 import pycolmap
 import pytest
 
+from colmap_trifocal import reconstruct
 from colmap_trifocal.cli.run import format_report
 from colmap_trifocal.database.cameras import CameraInfo
 from colmap_trifocal.reconstruction.workflow import RunOptions, run_pipeline
@@ -60,17 +61,27 @@ def test_run_estimates_the_distortion_and_the_intrinsics(
     assert camera["mapped_model"] == "SIMPLE_RADIAL"  # one term holds this lens
 
 
-def test_run_maps_a_lens_that_needs_k2_in_the_model_that_holds_it(tmp_path: Path) -> None:
-    """k1 = −0.2, k2 = +0.1 behind COLMAP's default SIMPLE_RADIAL camera: the tracks
-    determine RADIAL's k2, so the workspace maps the camera as RADIAL from that fit's
-    (f, cx, cy, k1, k2), says so, and leaves the user's database as it was."""
+@pytest.fixture(scope="module")
+def k2_lens_database(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, np.ndarray]:
+    """The handheld set through k1 = −0.2, k2 = +0.1, stored as COLMAP's default
+    SIMPLE_RADIAL camera (k = 0), and its true intrinsics."""
     scene = with_radial_distortion(handheld_indoor(seed=0), -0.2, 0.1)
     contents = scene_contents(scene)
     width, height = scene.width, scene.height
     default = [1.2 * max(width, height), width / 2, height / 2, 0.0]
     contents.cameras[1] = CameraInfo(1, "SIMPLE_RADIAL", width, height, default)
-    database = tmp_path / "database.db"
+    database = tmp_path_factory.mktemp("k2") / "database.db"
     write_database(contents, database)
+    return database, scene.intrinsics
+
+
+def test_run_maps_a_lens_that_needs_k2_in_the_model_that_holds_it(
+    k2_lens_database: tuple[Path, np.ndarray], tmp_path: Path
+) -> None:
+    """The tracks determine RADIAL's k2 behind the SIMPLE_RADIAL camera, so the workspace
+    maps the camera as RADIAL from that fit's (f, cx, cy, k1, k2), says so, and leaves
+    the user's database as it was."""
+    database, truth = k2_lens_database
     before = database.read_bytes()
     report = run_pipeline(None, tmp_path / "ws", RunOptions(database=database)).to_json()
     camera = report["cameras"][0]
@@ -79,8 +90,23 @@ def test_run_maps_a_lens_that_needs_k2_in_the_model_that_holds_it(tmp_path: Path
     k1, k2 = camera["distortion"]
     assert abs(k1 + 0.2) < 0.02 and abs(k2 - 0.1) < 0.03
     refined = np.array([camera["refined"][n] for n in ("fx", "fy", "cx", "cy")])
-    assert np.all(np.abs(refined - scene.intrinsics) < 0.01 * scene.intrinsics[0])
+    assert np.all(np.abs(refined - truth) < 0.01 * truth[0])
     assert "mapped as RADIAL" in format_report(report)
     assert database.read_bytes() == before
     with pycolmap.Database.open(str(tmp_path / "ws" / "database.db")) as workspace:
         assert {c.model.name for c in workspace.read_all_cameras()} == {"RADIAL"}
+
+
+def test_the_estimate_applies_to_the_radial_camera_reconstruct_mapped(
+    k2_lens_database: tuple[Path, np.ndarray],
+) -> None:
+    """``reconstruct`` maps the same lens as RADIAL; ``result.apply`` on its model writes
+    the RADIAL fit's camera there (not a SIMPLE_RADIAL one, which it would refuse)."""
+    database, _ = k2_lens_database
+    reconstruction, (result,) = reconstruct(database)
+    (camera_id,) = reconstruction.cameras
+    assert reconstruction.camera(camera_id).model.name == "RADIAL"
+    assert result.apply(reconstruction) == [camera_id]
+    expected = result.mapping_cameras()[camera_id]
+    assert reconstruction.camera(camera_id).params.tolist() == expected.params.tolist()
+    assert expected.params.tolist()[3:] == result.lens_distortion["richer_params"]

@@ -271,7 +271,8 @@ class CameraCalibration:
         must hold every camera id of the group, or only the first (the group merged into
         one camera: :func:`colmap_trifocal.merge_cameras`, ``reconstruct``). Each camera
         keeps its own distortion unless it is 0 and the tracks showed some
-        (:meth:`written_camera`).
+        (:meth:`written_camera`); a reconstruction's camera of the model ``reconstruct``
+        mapped the lens in (:meth:`mapping_cameras`) takes that camera.
 
         Returns:
             The camera ids written (sorted).
@@ -284,7 +285,14 @@ class CameraCalibration:
         cameras, group = self.updated_cameras(), list(self.camera_ids)
         if isinstance(target, pycolmap.Reconstruction):
             ids = group_ids_held(group, set(target.cameras), "the reconstruction")
-            return apply_cameras(target, {c: cameras[c] for c in ids})
+            mapped = self.mapping_cameras()
+            return apply_cameras(
+                target,
+                {
+                    c: mapped[c] if target.camera(c).model.name == mapped[c].model else cameras[c]
+                    for c in ids
+                },
+            )
         if isinstance(target, pycolmap.Database):
             return write_to_open_database(target, cameras, group)
         if isinstance(target, (str, Path)):
