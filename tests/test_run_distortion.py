@@ -26,18 +26,24 @@ from colmap_trifocal.synthetic.motions import handheld_indoor
 K1 = -0.05
 
 
-@pytest.fixture(scope="module")
-def barrel_lens_database(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, np.ndarray]:
-    """The synthetic handheld set through a k1 = −0.05 lens, stored as COLMAP stores a
-    new camera: SIMPLE_RADIAL, f = 1.2 · max(w, h), centred, k = 0."""
-    scene = with_radial_distortion(handheld_indoor(seed=0), K1)
+def _default_camera_database(folder: Path, k1: float, k2: float = 0.0) -> tuple[Path, np.ndarray]:
+    """The synthetic handheld set through a (k1, k2) lens, stored as COLMAP stores a new
+    camera (SIMPLE_RADIAL, f = 1.2 · max(w, h), centred, k = 0), in ``folder``; and its
+    true intrinsics."""
+    scene = with_radial_distortion(handheld_indoor(seed=0), k1, k2)
     contents = scene_contents(scene)
     width, height = scene.width, scene.height
     default = [1.2 * max(width, height), width / 2, height / 2, 0.0]
     contents.cameras[1] = CameraInfo(1, "SIMPLE_RADIAL", width, height, default)
-    database = tmp_path_factory.mktemp("lens") / "database.db"
+    database = folder / "database.db"
     write_database(contents, database)
     return database, scene.intrinsics
+
+
+@pytest.fixture(scope="module")
+def barrel_lens_database(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, np.ndarray]:
+    """A k1 = −0.05 lens behind COLMAP's default camera."""
+    return _default_camera_database(tmp_path_factory.mktemp("lens"), K1)
 
 
 def test_run_estimates_the_distortion_and_the_intrinsics(
@@ -63,16 +69,8 @@ def test_run_estimates_the_distortion_and_the_intrinsics(
 
 @pytest.fixture(scope="module")
 def k2_lens_database(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, np.ndarray]:
-    """The handheld set through k1 = −0.2, k2 = +0.1, stored as COLMAP's default
-    SIMPLE_RADIAL camera (k = 0), and its true intrinsics."""
-    scene = with_radial_distortion(handheld_indoor(seed=0), -0.2, 0.1)
-    contents = scene_contents(scene)
-    width, height = scene.width, scene.height
-    default = [1.2 * max(width, height), width / 2, height / 2, 0.0]
-    contents.cameras[1] = CameraInfo(1, "SIMPLE_RADIAL", width, height, default)
-    database = tmp_path_factory.mktemp("k2") / "database.db"
-    write_database(contents, database)
-    return database, scene.intrinsics
+    """A k1 = −0.2, k2 = +0.1 lens behind COLMAP's default camera."""
+    return _default_camera_database(tmp_path_factory.mktemp("k2"), -0.2, 0.1)
 
 
 def test_run_maps_a_lens_that_needs_k2_in_the_model_that_holds_it(
