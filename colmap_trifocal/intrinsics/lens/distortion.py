@@ -426,7 +426,7 @@ def _fitted(
     if significance is not None:
         threshold = float(chi2.isf(significance, len(extra)))
         statistic = _test_statistic(
-            adjustment, params[extra], params_std[extra], variance, threshold
+            adjustment, params[extra], params_std[extra], with_distortion, variance, threshold
         )
     fitted = CameraInfo(
         camera.camera_id, adjustment.camera_model, camera.width, camera.height, params
@@ -464,19 +464,21 @@ def _test_statistic(
     adjustment: _Adjustment,
     distortion: np.ndarray,
     distortion_std: np.ndarray,
+    with_distortion: float,
     variance: float,
     threshold: float,
 ) -> float:
     """The distortion test's statistic: the Wald statistic of pycolmap's covariance where
     it exceeds ``DECISIVE`` times the ``threshold`` (the largest z² of one term, a lower
-    bound of the terms' joint one), else the likelihood ratio ``(C₀ − C_k) / σ²``."""
+    bound of the terms' joint one), else the likelihood ratio ``(C₀ − C_k) / σ²``
+    (``with_distortion``: C_k, px²)."""
     with np.errstate(divide="ignore", invalid="ignore"):
         wald = float(np.max((distortion / distortion_std) ** 2))
     if np.isfinite(wald) and wald > DECISIVE * threshold:
         return wald
     shared, agreeing = adjustment.shared, adjustment.agreement.agreeing
     without = cost_without_distortion(shared, agreeing, adjustment.refined)
-    return (without - shared.cost(agreeing)) / variance
+    return (without - with_distortion) / variance
 
 
 def _lens_setup(free_parameters: FreeParameters) -> CameraSetup | None:
