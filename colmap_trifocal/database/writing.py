@@ -80,9 +80,10 @@ def _check_room(path: Path, *, backup: bool) -> None:
     size = 0
     if backup:
         size = path.stat().st_size
-        wal = Path(f"{path}-wal")
-        if wal.exists():
-            size += wal.stat().st_size
+        try:  # another process's last close checkpoints and deletes it at any time
+            size += Path(f"{path}-wal").stat().st_size
+        except FileNotFoundError:
+            pass
     needed = size + WRITE_ROOM_BYTES
     try:
         free = shutil.disk_usage(path.parent).free
