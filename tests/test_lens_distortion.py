@@ -32,14 +32,16 @@ from colmap_trifocal.synthetic.motions import forward_driving, handheld_indoor
 NAMES = ("fx", "fy", "cx", "cy")
 
 
-def _default_camera_contents(k1: float, seed: int, k2: float = 0.0):
+def _default_camera_contents(k1: float, seed: int, k2: float = 0.0, model: str = "SIMPLE_RADIAL"):
     """The 17-frame handheld set through a ``(k1, k2)`` lens, stored as COLMAP's default
-    SIMPLE_RADIAL camera (k = 0), and its true (fx, fy, cx, cy)."""
+    SIMPLE_RADIAL camera (k = 0), or a ``PINHOLE`` one at COLMAP's guess, and its true
+    (fx, fy, cx, cy)."""
     scene = with_radial_distortion(handheld_indoor(seed=seed), k1, k2)
     contents = scene_contents(scene)
     width, height = scene.width, scene.height
-    default = [1.2 * max(width, height), width / 2, height / 2, 0.0]
-    contents.cameras[CAMERA_ID] = CameraInfo(CAMERA_ID, "SIMPLE_RADIAL", width, height, default)
+    focal, cx, cy = 1.2 * max(width, height), width / 2, height / 2
+    default = [focal, cx, cy, 0.0] if model == "SIMPLE_RADIAL" else [focal, focal, cx, cy]
+    contents.cameras[CAMERA_ID] = CameraInfo(CAMERA_ID, model, width, height, default)
     return contents, scene.intrinsics
 
 
@@ -137,6 +139,37 @@ def test_a_pinhole_camera_stays_pinhole_and_says_why_its_focal_length_is_uncerta
     error = abs(result.fx - scene.intrinsics[0])
     assert error / scene.intrinsics[0] > 0.05  # still biased: a pinhole camera cannot hold k
     assert result.std["fx"] is not None and error < 2 * result.std["fx"]
+
+
+def test_a_pinhole_camera_on_a_strong_lens_is_calibrated_through_the_lens() -> None:
+    """k1 = −0.25 through a PINHOLE camera at COLMAP's guess: the tensors of the raw
+    tracks agree on nothing; the lens search's warped tracks give K (it was held at the
+    guess, 24 % off). The camera stays PINHOLE and the diagnosis names the lens. From a
+    prior, what the lens leaves within 3 std of the start is held there: never further
+    from the truth than the start, each held value's std covering its error."""
+    contents, truth = _default_camera_contents(-0.25, 0, model="PINHOLE")
+    (result,) = calibrate_contents(contents, CalibrationOptions(seed=0))
+    assert result.model == "PINHOLE" and result.distortion is None
+    assert "radial distortion in the tracks" in (result.diagnosis or "")
+    assert result.source["fx"] == "trifocal" and result.source["fy"] == "trifocal"
+    focal_error = np.abs(result.intrinsics[:2] / truth[:2] - 1)
+    assert np.all(focal_error < 0.03), focal_error  # the guess is 46 % off
+    error = np.abs(result.intrinsics - truth)
+    for index, name in enumerate(NAMES):
+        std = result.std[name]
+        assert std is not None and error[index] < 2 * std, (name, error[index], std)
+
+    prior = truth * np.array([1.05, 0.97, 1.02, 0.98])
+    (result,) = calibrate_contents(contents, CalibrationOptions(prior=tuple(prior), seed=0))
+    error = np.abs(result.intrinsics - truth)
+    assert np.mean(error / truth) <= np.mean(np.abs(prior - truth) / truth) + 1e-12
+    held = [name for name in NAMES if result.source[name] == "prior"]
+    assert held and "held at the start where the estimate through the lens" in result.diagnosis
+    for name in held:
+        index = NAMES.index(name)
+        assert result.intrinsics[index] == prior[index] and not result.observable[name]
+        std = result.std[name]
+        assert std is not None and error[index] < 2 * std, (name, error[index], std)
 
 
 def test_strong_distortion_never_ends_further_from_the_truth_than_the_prior() -> None:

@@ -50,7 +50,7 @@ BARS: dict[tuple[str, str], float] = {
     ("entry-P10", "default"): 0.50,
     ("entry-P10", "pinhole"): 0.50,
     ("euroc-V1_01", "default"): 7.0,
-    ("euroc-V1_01", "pinhole"): 51.0,
+    ("euroc-V1_01", "pinhole"): 4.0,
     ("lego", "default"): 3.0,
     ("lego", "pinhole"): 3.0,
     ("temple-ring", "default"): 3.0,

@@ -217,6 +217,7 @@ def _calibrate_method(
                 chosen.finished.lens,
                 options.workers,
                 chosen.finding,
+                chosen.warped,
             )
         )
     result = replace(result, timing=Timing(clock.total, clock.as_dict(), estimator.starts_used))
@@ -227,12 +228,14 @@ def _calibrate_method(
 @dataclass
 class _Chosen:
     """The run a method's result is assessed from: its inputs (raw or warped), its focal
-    search, what it finished with, and what the route found about the lens."""
+    search, what it finished with, what the route found about the lens, and whether
+    the estimate is the lens route's (warped tracks)."""
 
     inputs: AttemptInputs
     search: FocalSearchResult | None
     finished: Finished
     finding: str | None
+    warped: bool = False
 
 
 def _chosen_run(
@@ -256,7 +259,7 @@ def _chosen_run(
     inputs.estimator.charge(route.spent)
     if route.warped is not None:
         warped = route.warped
-        return _Chosen(warped.inputs, warped.search, warped.finished, None)
+        return _Chosen(warped.inputs, warped.search, warped.finished, None, warped=True)
     assert first is not None
     best = restarted(inputs, first)
     if not route.bent:

@@ -1,7 +1,7 @@
 """The lens search's warp applied to a camera's input, and what the route tells.
 
-Where most tensors disagree at the first start on a camera whose stored model has
-radial distortion but holds none (COLMAP's default ``SIMPLE_RADIAL``), the lens search
+Where most tensors disagree at the first start on a camera that holds no distortion
+(COLMAP's default ``SIMPLE_RADIAL`` with k = 0, or a pinhole camera), the lens search
 (:mod:`.search`) looks for a radial warp (division or polynomial). This module says
 when the search applies (:func:`lens_search_applies`), runs it with the camera's seed
 (:func:`find_warp`), warps the keypoints and tracks with a warp (:func:`warped_input`),
@@ -31,13 +31,14 @@ RADIAL_PARAMETERS = {"SIMPLE_RADIAL": 1, "RADIAL": 2, "OPENCV": 2}
 
 def lens_search_applies(camera: CameraInfo, method: str, options: CalibrationOptions) -> bool:
     """Whether the lens search may run: the polished variant, a focal search, and a
-    stored model with radial distortion that holds none yet (a pinhole stays pinhole)."""
+    stored camera that holds no distortion and whose lens stage fits radial terms (its
+    own model, or ``SIMPLE_RADIAL`` / ``OPENCV`` behind a pinhole camera, which stays
+    pinhole: K through the lens, no distortion written)."""
     return (
         method == "msac-opt"
         and options.triplet_bundle
         and options.focal_search
-        and distortion_model(camera) == camera.model
-        and camera.model in RADIAL_PARAMETERS
+        and distortion_model(camera) in RADIAL_PARAMETERS
     )
 
 
@@ -86,11 +87,14 @@ def distortion_start(
     raw: dict[tuple[int, int, int], np.ndarray],
     intrinsics: np.ndarray,
 ) -> np.ndarray:
-    """The stored model's distortion (COLMAP's order) nearest the warp at ``intrinsics``
-    (pixels): its radial terms fitted out to the farthest raw track, the rest 0."""
+    """The lens stage's model's distortion (COLMAP's order; :func:`.distortion_model`)
+    nearest the warp at ``intrinsics`` (pixels): its radial terms fitted out to the
+    farthest raw track, the rest 0."""
     farthest = max(float(np.max(np.linalg.norm(x - warp.centre, axis=-1))) for x in raw.values())
-    radial = polynomial_start(warp, intrinsics, RADIAL_PARAMETERS[camera.model], farthest)
-    start = np.zeros(len(camera.distortion))
+    model = distortion_model(camera)
+    assert model is not None
+    radial = polynomial_start(warp, intrinsics, RADIAL_PARAMETERS[model], farthest)
+    start = np.zeros(len(CameraInfo.blank(model).distortion))
     start[: len(radial)] = radial
     return start
 
