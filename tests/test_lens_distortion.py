@@ -18,6 +18,7 @@ from colmap_trifocal.database.cameras import CameraInfo
 from colmap_trifocal.database.features import build_database
 from colmap_trifocal.datasets.strecha import ground_truth_intrinsics, scene_images
 from colmap_trifocal.intrinsics.api import write_calibrations
+from colmap_trifocal.intrinsics.assess.assessment import at_focal_ratio
 from colmap_trifocal.intrinsics.lens import distortion
 from colmap_trifocal.synthetic.database import CAMERA_ID, scene_contents, write_database
 from colmap_trifocal.synthetic.facade import facade_scene
@@ -355,3 +356,36 @@ def test_real_images_through_a_strong_lens_from_the_default_camera(tmp_path: Pat
         assert std is not None and error < 2.5 * std, (name, error, std)
         if name in ("cx", "cy") and result.observable[name]:
             assert error < 0.005 * truth[0], (name, error)
+
+
+def test_distortion_at_a_held_focal_length_bends_the_pixels_as_the_fit_did() -> None:
+    """Where the lens route holds f at the start, k is rescaled to it: the `RADIAL`
+    camera at the held f and the rescaled (k1, k2) maps every pixel as the fit did
+    (pycolmap's projection), and so does the stored SIMPLE_RADIAL model's k."""
+    fit = distortion.LensDistortion(
+        "SIMPLE_RADIAL",
+        np.array([478.0, 478.0, 377.0, 276.0]),
+        np.zeros(4),
+        np.array([-0.18]),
+        np.array([0.01]),
+        statistic=100.0,
+        threshold=3.8,
+        agreeing=18,
+        richer_model="RADIAL",
+        richer_distortion=np.array([-0.27, 0.063]),
+    )
+    held_focal = 456.0
+    held = at_focal_ratio(fit, held_focal / 478.0)
+    pixels = np.array([[10.0, 5.0], [300.0, -200.0], [-350.0, 230.0]])  # from the centre
+    for model, before, after in [
+        ("SIMPLE_RADIAL", fit.distortion, held.distortion),
+        ("RADIAL", fit.richer_distortion, held.richer_distortion),
+    ]:
+        mapped = []
+        for focal, params in [(478.0, before), (held_focal, after)]:
+            camera = pycolmap.Camera.create_from_model_name(1, model, focal, 752, 480)
+            camera.params = [focal, 0.0, 0.0, *params]
+            rays = np.hstack([pixels / focal, np.ones((len(pixels), 1))])
+            mapped.append(camera.img_from_cam(rays))
+        np.testing.assert_allclose(mapped[0], mapped[1], rtol=0, atol=1e-9)
+    assert held.distortion[0] != fit.distortion[0]

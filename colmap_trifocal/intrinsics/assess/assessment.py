@@ -172,15 +172,22 @@ def _reported(given: AssessInput) -> _Reported:
             # principal point (pycolmap refines both coordinates or neither).
             reported_std[name] = float(candidate.held_std[index] * held_focal[index])
             estimate[index] = polished.intrinsics[index]
-    through_a_lens = given.warped or (lens is not None and lens.present)
-    if through_a_lens and camera.model in PINHOLE_MODELS:
+    pinhole = camera.model in PINHOLE_MODELS
+    if given.warped or (pinhole and lens is not None and lens.present):
         estimate = estimate.copy()
+        fitted_focal = float(estimate[0])
         prior = np.asarray(given.data.prior, float)
         start_std = candidate.held_std * np.array([prior[0], prior[1], prior[0], prior[1]])
-        held = held_where_indecisive(estimate, reported_std, source, prior, start_std)
+        held = held_where_indecisive(
+            estimate, reported_std, source, prior, start_std, tie_fy=camera.single_focal
+        )
         lens_note = _joined(lens_note, held)
         observable = {name: observable[name] and source[name] != "prior" for name in observable}
         estimated = {name: estimated[name] and source[name] != "prior" for name in estimated}
+        if lens is not None and distortion is not None and estimate[0] != fitted_focal:
+            # The same distortion in pixels at the held focal length.
+            lens = at_focal_ratio(lens, float(estimate[0]) / fitted_focal)
+            distortion = [float(v) for v in lens.distortion]
     if lens is not None and source["fx"] in ("focal-search", "prior"):
         focal_std = reported_std["fx"] or candidate.held_std[0] * held_focal[0]
         lens = with_held_focal(lens, float(focal_std / estimate[0]))
@@ -217,21 +224,24 @@ def held_where_indecisive(
     source: dict[str, str],
     start: np.ndarray,
     start_std: np.ndarray,
+    *,
+    tie_fy: bool = False,
 ) -> str | None:
-    """Hold at the start (in place) each estimated value of a pinhole camera on a lens
-    it cannot hold that is within ``DECISIVE_Z`` std of the start; a tied fy follows a
-    held fx. ``start_std``: the start's std (4,), pixels. Returns the note naming them
-    (None: none held).
+    """Hold at the start (in place) each estimated value that is within ``DECISIVE_Z``
+    std of the start, for an estimate that rests on a strong lens: the lens search's
+    warped tracks, or a pinhole camera's tracks bent by distortion it does not model. A
+    tied fy (``tie_fy``: a single-focal model) follows fx. ``start_std``: the start's
+    std (4,), pixels. Returns the note naming the held values (None: none held).
 
-    Why: the estimate rests on a lens the camera does not model (the tracks warped by
-    the lens search, or bent, with a distortion fit the camera does not keep); where it
-    does not differ decisively from the start, the start is the better evidence. On
-    EuRoC's drone lens from ±5 % priors the estimate lands 3–9 % off, inside its std;
-    on synthetic frames through k1 −0.2, k2 0.1 a SIMPLE_PINHOLE camera's tensors agree
-    on f 38 % off with a std of 37 %. The held value's std is the start's, as for any
-    held value, and at least reaches over the estimate's ±2 std interval (std +
-    |estimate − start| / 2): the lens route's std of the principal point can be too
-    small (EuRoC: cx 376.5 ± 1.6 px, truth 367.7).
+    Why: such an estimate rests on a warp and a distortion fit that carry more error
+    than the std says; where it does not differ decisively from the start, the start is
+    the better evidence. On EuRoC's drone lens from ±5 % priors the estimates land 3–9 %
+    off, within 2 std of the start, and ended further from the truth than the start in
+    9 of 10 runs; on synthetic frames through k1 −0.2, k2 0.1 a SIMPLE_PINHOLE camera's
+    tensors agree on f 38 % off with a std of 37 %. The held value's std is the start's,
+    as for any held value, and at least reaches over the estimate's ±2 std interval
+    (std + |estimate − start| / 2): the lens route's std of the principal point can be
+    too small (EuRoC: cx 376.5 ± 1.6 px, truth 367.7).
     """
     start = np.asarray(start, float)
     held = []
@@ -246,7 +256,7 @@ def held_where_indecisive(
         estimate[index] = start[index]
         std[name] = max(float(start_std[index]), value_std + move / 2)
         source[name] = "prior"
-        if name == "fx" and source["fy"] == "tied":
+        if name == "fx" and (tie_fy or source["fy"] == "tied"):
             estimate[1], source["fy"] = start[1], "prior"
             std["fy"] = max(float(start_std[1]), value_std + move / 2)
     if not held:
@@ -378,6 +388,25 @@ _FOCAL_POWERS = {
     "RADIAL": (2, 4),
     "OPENCV": (2, 4, 1, 1),
 }
+
+
+def at_focal_ratio(lens: LensDistortion, ratio: float) -> LensDistortion:
+    """``lens`` with its distortion (and the richer model's) for a focal length ``ratio``
+    times the fitted one: the same distortion in pixels at the same pixel radius (k1
+    scales with f², k2 with f⁴, a tangential term with f)."""
+
+    def scaled(values: np.ndarray, model: str) -> np.ndarray:
+        powers = np.array(_FOCAL_POWERS.get(model, (2,) * len(values)))[: len(values)]
+        return np.asarray(values, float) * ratio**powers
+
+    richer = lens.richer_distortion
+    return replace(
+        lens,
+        distortion=scaled(lens.distortion, lens.camera_model),
+        richer_distortion=None
+        if richer is None or lens.richer_model is None
+        else scaled(richer, lens.richer_model),
+    )
 
 
 def with_held_focal(lens: LensDistortion, focal_std: float) -> LensDistortion:
