@@ -175,7 +175,7 @@ def _reported(given: AssessInput) -> _Reported:
     pinhole = camera.model in PINHOLE_MODELS
     if given.warped or (pinhole and lens is not None and lens.present):
         estimate = estimate.copy()
-        fitted_focal = float(estimate[0])
+        fitted_focal = float(np.sqrt(estimate[0] * estimate[1]))
         prior = np.asarray(given.data.prior, float)
         start_std = candidate.held_std * np.array([prior[0], prior[1], prior[0], prior[1]])
         held = held_where_indecisive(
@@ -184,9 +184,10 @@ def _reported(given: AssessInput) -> _Reported:
         lens_note = _joined(lens_note, held)
         observable = {name: observable[name] and source[name] != "prior" for name in observable}
         estimated = {name: estimated[name] and source[name] != "prior" for name in estimated}
-        if lens is not None and distortion is not None and estimate[0] != fitted_focal:
+        reported_focal = float(np.sqrt(estimate[0] * estimate[1]))
+        if lens is not None and distortion is not None and reported_focal != fitted_focal:
             # The same distortion in pixels at the held focal length.
-            lens = at_focal_ratio(lens, float(estimate[0]) / fitted_focal)
+            lens = at_focal_ratio(lens, reported_focal / fitted_focal)
             distortion = [float(v) for v in lens.distortion]
     if lens is not None and source["fx"] in ("focal-search", "prior"):
         focal_std = reported_std["fx"] or candidate.held_std[0] * held_focal[0]
@@ -213,8 +214,8 @@ def _reported(given: AssessInput) -> _Reported:
 SQUARE_PIXELS_STD = 0.002
 
 
-#: A pinhole camera's value estimated through a lens it cannot hold replaces the start
-#: only where it is more than this many std from it.
+#: A value estimated through a strong lens (the lens route, or a pinhole camera's bent
+#: tracks) replaces the start only where it is more than this many std from it.
 DECISIVE_Z = 3.0
 
 
