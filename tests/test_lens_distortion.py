@@ -19,6 +19,7 @@ from colmap_trifocal.database.features import build_database
 from colmap_trifocal.datasets.strecha import ground_truth_intrinsics, scene_images
 from colmap_trifocal.intrinsics.api import write_calibrations
 from colmap_trifocal.intrinsics.assess.assessment import at_focal_ratio
+from colmap_trifocal.intrinsics.inputs.prior import default_guess
 from colmap_trifocal.intrinsics.lens import distortion
 from colmap_trifocal.synthetic.database import CAMERA_ID, scene_contents, write_database
 from colmap_trifocal.synthetic.facade import facade_scene
@@ -40,8 +41,8 @@ def _default_camera_contents(k1: float, seed: int, k2: float = 0.0, model: str =
     scene = with_radial_distortion(handheld_indoor(seed=seed), k1, k2)
     contents = scene_contents(scene)
     width, height = scene.width, scene.height
-    focal, cx, cy = 1.2 * max(width, height), width / 2, height / 2
-    default = [focal, cx, cy, 0.0] if model == "SIMPLE_RADIAL" else [focal, focal, cx, cy]
+    fx, fy, cx, cy = default_guess(width, height)
+    default = [fx, cx, cy, 0.0] if model == "SIMPLE_RADIAL" else [fx, fy, cx, cy]
     contents.cameras[CAMERA_ID] = CameraInfo(CAMERA_ID, model, width, height, default)
     return contents, scene.intrinsics
 

@@ -18,6 +18,7 @@ import pytest
 from colmap_trifocal import reconstruct
 from colmap_trifocal.cli.run import format_report
 from colmap_trifocal.database.cameras import CameraInfo
+from colmap_trifocal.intrinsics.inputs.prior import default_guess
 from colmap_trifocal.reconstruction.workflow import RunOptions, run_pipeline
 from colmap_trifocal.synthetic.database import scene_contents, write_database
 from colmap_trifocal.synthetic.lenses import with_radial_distortion
@@ -33,8 +34,8 @@ def _default_camera_database(folder: Path, k1: float, k2: float = 0.0) -> tuple[
     scene = with_radial_distortion(handheld_indoor(seed=0), k1, k2)
     contents = scene_contents(scene)
     width, height = scene.width, scene.height
-    default = [1.2 * max(width, height), width / 2, height / 2, 0.0]
-    contents.cameras[1] = CameraInfo(1, "SIMPLE_RADIAL", width, height, default)
+    focal, _, cx, cy = default_guess(width, height)
+    contents.cameras[1] = CameraInfo(1, "SIMPLE_RADIAL", width, height, [focal, cx, cy, 0.0])
     database = folder / "database.db"
     write_database(contents, database)
     return database, scene.intrinsics

@@ -254,12 +254,13 @@ def held_where_indecisive(
         if move > DECISIVE_Z * value_std:
             continue
         held.append(f"{name} {estimate[index]:.1f} ± {value_std:.1f}")
-        estimate[index] = start[index]
-        std[name] = max(float(start_std[index]), value_std + move / 2)
-        source[name] = "prior"
+        followers = [index]
         if name == "fx" and (tie_fy or source["fy"] == "tied"):
-            estimate[1], source["fy"] = start[1], "prior"
-            std["fy"] = max(float(start_std[1]), value_std + move / 2)
+            followers.append(1)
+        for follower in followers:
+            estimate[follower] = start[follower]
+            std[PARAMETER_NAMES[follower]] = max(float(start_std[follower]), value_std + move / 2)
+            source[PARAMETER_NAMES[follower]] = "prior"
     if not held:
         return None
     return (
@@ -391,14 +392,19 @@ _FOCAL_POWERS = {
 }
 
 
+def _focal_powers(model: str, count: int) -> np.ndarray:
+    """The powers of f that ``model``'s first ``count`` distortion parameters scale with
+    (``_FOCAL_POWERS``; 2 for a model not listed)."""
+    return np.array(_FOCAL_POWERS.get(model, (2,) * count))[:count]
+
+
 def at_focal_ratio(lens: LensDistortion, ratio: float) -> LensDistortion:
     """``lens`` with its distortion (and the richer model's) for a focal length ``ratio``
     times the fitted one: the same distortion in pixels at the same pixel radius (k1
     scales with f², k2 with f⁴, a tangential term with f)."""
 
     def scaled(values: np.ndarray, model: str) -> np.ndarray:
-        powers = np.array(_FOCAL_POWERS.get(model, (2,) * len(values)))[: len(values)]
-        return np.asarray(values, float) * ratio**powers
+        return np.asarray(values, float) * ratio ** _focal_powers(model, len(values))
 
     richer = lens.richer_distortion
     return replace(
@@ -416,8 +422,7 @@ def with_held_focal(lens: LensDistortion, focal_std: float) -> LensDistortion:
     conditional on f; the tracks fix the distortion in pixels, k1 = (distortion in
     pixels) · f² / r², so k1 moves by 2 · focal_std relative where f does (k2 by 4, a
     tangential term by 1)."""
-    powers = np.array(_FOCAL_POWERS.get(lens.camera_model, (2,) * len(lens.distortion)))
-    powers = powers[: len(lens.distortion)]
+    powers = _focal_powers(lens.camera_model, len(lens.distortion))
     spread = powers * np.abs(lens.distortion) * focal_std
     std = np.where(np.isfinite(lens.distortion_std), lens.distortion_std, 0.0)
     widened = np.hypot(std, spread)
