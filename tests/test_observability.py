@@ -23,6 +23,7 @@ from colmap_trifocal.intrinsics.solve.theta import intrinsics_to_theta, theta_to
 from colmap_trifocal.intrinsics.solve.uncertainty import (
     combined_information,
     image_groups,
+    is_sequence,
     jackknife_covariance,
     jackknife_replicates,
 )
@@ -176,10 +177,21 @@ def test_single_focal_camera_reports_fy_with_fx() -> None:
     assert SINGLE_FOCAL.assumptions() == ["fy = fx"]
 
 
-def test_image_groups_deal_images_round_robin() -> None:
-    groups = image_groups([(1, 2, 3), (2, 3, 4), (4, 5, 6)], max_groups=4)
-    assert groups == [{1, 5}, {2, 6}, {3}, {4}]
+def test_image_groups_deal_unordered_images_round_robin() -> None:
+    # Triplets spanning most of the images (matched in no order): not a sequence.
+    ids = [(1, 4, 6), (2, 3, 5), (1, 3, 6)]
+    assert not is_sequence(ids)
+    assert image_groups(ids, max_groups=4) == [{1, 5}, {2, 6}, {3}, {4}]
     assert image_groups([(1, 2, 3)], max_groups=10) == [{1}, {2}, {3}]
+
+
+def test_image_groups_of_a_sequence_are_consecutive_blocks() -> None:
+    # Triplets of consecutive frames: deleting a block removes a stretch of the sequence.
+    ids = [(1, 2, 3), (2, 3, 4), (4, 5, 6), (5, 6, 8), (7, 8, 9)]
+    assert is_sequence(ids)
+    assert image_groups(ids, max_groups=4) == [{1, 2}, {3, 4}, {5, 6}, {7, 8, 9}]
+    # A ring whose triplets close the loop spans more than half the images.
+    assert not is_sequence([(1, 2, 3), (3, 4, 5), (5, 6, 1)])
 
 
 def test_jackknife_needs_enough_groups() -> None:

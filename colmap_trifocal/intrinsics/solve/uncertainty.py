@@ -8,9 +8,10 @@ Two estimates of the covariance of θ (the relative corrections of
   tensors are independent (one triplet, the paper's synthetic experiment). But
   triplets of a sequence share images and tracks, so their errors are correlated
   and H over-counts: the std alone is too small there.
-* **Jackknife over images**: the images of the triplets are dealt into at most
-  ``MAX_GROUPS`` groups; each replicate drops one group's images (every tensor
-  that uses one of them) and re-solves from the estimate (the method's local
+* **Jackknife over images**: the images of the triplets are put into at most
+  ``MAX_GROUPS`` groups (consecutive blocks on a sequence, :func:`image_groups`);
+  each replicate drops one group's images (every tensor that uses one of them) and
+  re-solves from the estimate (the method's local
   cost: least squares for ``direct``, a few rounds of the MSAC reweighting
   otherwise); ``C_J = (g − 1)/g Σ (θ_(i) − θ̄)(θ_(i) − θ̄)ᵀ``. Dropping whole
   images keeps the correlated tensors together. Each replicate is one
@@ -48,10 +49,35 @@ NULL_RATIO = 1e-8
 def image_groups(
     image_ids: Sequence[tuple[int, ...]], max_groups: int = MAX_GROUPS
 ) -> list[set[int]]:
-    """Images of the tensors dealt into at most ``max_groups`` groups (sorted, round-robin)."""
+    """Images of the tensors in at most ``max_groups`` groups, in image id order:
+    contiguous blocks where the triplets form a sequence (:func:`is_sequence`), else
+    dealt round-robin.
+
+    Why blocks on a sequence. Neighbouring frames of a drive or a video carry nearly the
+    same information, so a round-robin group (every g-th frame) leaves every stretch of
+    the sequence in each replicate: the replicates agree and the jackknife misses how
+    much the estimate rests on one stretch (the turn of a drive). Deleting a block of
+    consecutive frames is the block jackknife of dependent data. Images taken in no
+    order (an object capture's) have no stretches: any grouping serves, and round-robin
+    is kept.
+    """
     images = sorted({i for ids in image_ids for i in ids})
     count = min(max_groups, len(images))
+    if is_sequence(image_ids):
+        n = len(images)
+        return [set(images[g * n // count : (g + 1) * n // count]) for g in range(count)]
     return [set(images[g::count]) for g in range(count)]
+
+
+def is_sequence(image_ids: Sequence[tuple[int, ...]]) -> bool:
+    """Whether the triplets form a sequence: each lies within a window of at most half
+    the images (by image id order, COLMAP's default being the file names' order), as
+    triplets chosen from consecutive frames do. A ring whose triplets close the loop,
+    or images matched in no order, span more."""
+    images = sorted({i for ids in image_ids for i in ids})
+    rank = {image: position for position, image in enumerate(images)}
+    spans = [max(rank[i] for i in ids) - min(rank[i] for i in ids) for ids in image_ids]
+    return bool(spans) and max(spans) <= len(images) // 2
 
 
 def jackknife_replicates(
