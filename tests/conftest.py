@@ -44,8 +44,14 @@ import pycolmap
 import pytest
 
 from colmap_trifocal.database import features as features_module
+from colmap_trifocal.database.cameras import CameraInfo
 from colmap_trifocal.database.features import build_database
+from colmap_trifocal.database.snapshot import DatabaseContents
 from colmap_trifocal.datasets.strecha import DATASETS_ENV, default_datasets_root
+from colmap_trifocal.intrinsics.inputs.prior import default_guess
+from colmap_trifocal.synthetic.database import CAMERA_ID, scene_contents
+from colmap_trifocal.synthetic.lenses import with_radial_distortion
+from colmap_trifocal.synthetic.motions import handheld_indoor
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(PROJECT_ROOT / "benchmarks"))  # real_scenes: the benchmark's scenes
@@ -570,6 +576,21 @@ def intrinsics_of(params: list[float], model: str) -> np.ndarray:
     if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
         return np.array([params[0], params[0], params[1], params[2]])
     return np.array(params[:4])
+
+
+def handheld_lens_contents(
+    k1: float, seed: int, k2: float = 0.0, model: str = "SIMPLE_RADIAL"
+) -> tuple[DatabaseContents, np.ndarray]:
+    """The 17-frame synthetic handheld set through a ``(k1, k2)`` lens, stored as COLMAP
+    stores a new camera (``SIMPLE_RADIAL`` at its guess f = 1.2 · max(w, h), centred,
+    k = 0) or as a ``PINHOLE`` camera at that guess; and its true (fx, fy, cx, cy)."""
+    scene = with_radial_distortion(handheld_indoor(seed=seed), k1, k2)
+    contents = scene_contents(scene)
+    width, height = scene.width, scene.height
+    fx, fy, cx, cy = default_guess(width, height)
+    default = [fx, cx, cy, 0.0] if model == "SIMPLE_RADIAL" else [fx, fy, cx, cy]
+    contents.cameras[CAMERA_ID] = CameraInfo(CAMERA_ID, model, width, height, default)
+    return contents, scene.intrinsics
 
 
 # --------------------------------------------------------------------------- images, privileges

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pycolmap
 import pytest
-from conftest import strecha_root
+from conftest import handheld_lens_contents, strecha_root
 
 from colmap_trifocal import CalibrationOptions, calibrate_contents, calibrate_database
 from colmap_trifocal.database.cameras import CameraInfo
@@ -19,7 +19,6 @@ from colmap_trifocal.database.features import build_database
 from colmap_trifocal.datasets.strecha import ground_truth_intrinsics, scene_images
 from colmap_trifocal.intrinsics.api import write_calibrations
 from colmap_trifocal.intrinsics.assess.assessment import at_focal_ratio
-from colmap_trifocal.intrinsics.inputs.prior import default_guess
 from colmap_trifocal.intrinsics.lens import distortion
 from colmap_trifocal.synthetic.database import CAMERA_ID, scene_contents, write_database
 from colmap_trifocal.synthetic.facade import facade_scene
@@ -32,19 +31,6 @@ from colmap_trifocal.synthetic.lenses import (
 from colmap_trifocal.synthetic.motions import forward_driving, handheld_indoor
 
 NAMES = ("fx", "fy", "cx", "cy")
-
-
-def _default_camera_contents(k1: float, seed: int, k2: float = 0.0, model: str = "SIMPLE_RADIAL"):
-    """The 17-frame handheld set through a ``(k1, k2)`` lens, stored as COLMAP's default
-    SIMPLE_RADIAL camera (k = 0), or a ``PINHOLE`` one at COLMAP's guess, and its true
-    (fx, fy, cx, cy)."""
-    scene = with_radial_distortion(handheld_indoor(seed=seed), k1, k2)
-    contents = scene_contents(scene)
-    width, height = scene.width, scene.height
-    fx, fy, cx, cy = default_guess(width, height)
-    default = [fx, cx, cy, 0.0] if model == "SIMPLE_RADIAL" else [fx, fy, cx, cy]
-    contents.cameras[CAMERA_ID] = CameraInfo(CAMERA_ID, model, width, height, default)
-    return contents, scene.intrinsics
 
 
 def _assert_within_half_a_percent_and_covered(result, truth: np.ndarray) -> None:
@@ -63,7 +49,7 @@ def test_k_estimated_with_the_intrinsics_from_the_default_camera(k1: float, seed
     """From COLMAP's default camera, k is estimated with K. At k1 = -0.1, seed 3, the
     constraints hold cy at the start (its unmodelled distortion leaves cy undetermined):
     the lens adjustment then holds the whole principal point and still runs."""
-    contents, truth = _default_camera_contents(k1, seed)
+    contents, truth = handheld_lens_contents(k1, seed)
     (result,) = calibrate_contents(contents, CalibrationOptions(no_prior=True, seed=seed))
     lens = result.lens_distortion
     assert lens is not None
@@ -94,7 +80,7 @@ def test_a_lens_that_needs_k2_takes_k_from_the_radial_fit(seed: int) -> None:
     −0.159). RADIAL's k2 is determined, so K comes from the RADIAL fit (0.8 %), the note
     says to store the camera as RADIAL, and each std covers the distance between the
     two fits."""
-    contents, truth = _default_camera_contents(-0.2, seed, k2=0.1)
+    contents, truth = handheld_lens_contents(-0.2, seed, k2=0.1)
     (result,) = calibrate_contents(contents, CalibrationOptions(no_prior=True, seed=seed))
     lens = result.lens_distortion
     assert lens is not None and lens["present"] and lens["richer_model"] == "RADIAL"
@@ -114,7 +100,7 @@ def test_a_decisive_lens_skips_the_pinhole_fit_and_reports_the_same_camera(
     """Where pycolmap's covariance puts k beyond ``DECISIVE`` times the test's threshold,
     the pinhole fit C₀ is not run: the statistic is the Wald one, and the decision, the
     camera, k and every std are those of the run that computes C₀."""
-    contents, _ = _default_camera_contents(-0.2, 0, k2=0.1)
+    contents, _ = handheld_lens_contents(-0.2, 0, k2=0.1)
     options = CalibrationOptions(no_prior=True, seed=0)
     (decisive,) = calibrate_contents(contents, options)
     factor = distortion.DECISIVE
@@ -149,7 +135,7 @@ def test_a_pinhole_camera_on_a_strong_lens_is_calibrated_through_the_lens() -> N
     guess, 24 % off). The camera stays PINHOLE and the diagnosis names the lens. From a
     prior, what the lens leaves within 3 std of the start is held there: never further
     from the truth than the start, each held value's std covering its error."""
-    contents, truth = _default_camera_contents(-0.25, 0, model="PINHOLE")
+    contents, truth = handheld_lens_contents(-0.25, 0, model="PINHOLE")
     (result,) = calibrate_contents(contents, CalibrationOptions(seed=0))
     assert result.model == "PINHOLE" and result.distortion is None
     assert "radial distortion in the tracks" in (result.diagnosis or "")
@@ -178,7 +164,7 @@ def test_strong_distortion_never_ends_further_from_the_truth_than_the_prior() ->
     """k1 = −0.25: the tensors disagree and the focal search's cost is not decisive; the
     result is the prior, with the prior's std (an indecisive search used to replace it,
     194 % off)."""
-    contents, truth = _default_camera_contents(-0.25, 0)
+    contents, truth = handheld_lens_contents(-0.25, 0)
     prior = truth * np.array([1.05, 1.05, 1.02, 0.98])
     (result,) = calibrate_contents(contents, CalibrationOptions(prior=tuple(prior), seed=0))
     start_error = np.abs(prior - truth)
@@ -191,7 +177,7 @@ def test_strong_distortion_never_ends_further_from_the_truth_than_the_prior() ->
 
 
 def test_the_estimated_k_is_written_to_the_database(tmp_path: Path) -> None:
-    contents, truth = _default_camera_contents(-0.05, 1)
+    contents, truth = handheld_lens_contents(-0.05, 1)
     database = write_database(contents, tmp_path / "database.db")
     (result,) = calibrate_contents(contents, CalibrationOptions(no_prior=True, seed=1))
     assert write_calibrations(database, [result]) == 1
@@ -223,7 +209,7 @@ def test_k_found_at_a_held_focal_length_carries_that_focal_lengths_doubt() -> No
 
 def test_the_command_line_prints_k_with_its_std(tmp_path: Path, run_main) -> None:
     """``calibrate`` shows the estimated distortion and every std beside the estimate."""
-    contents, _ = _default_camera_contents(-0.05, 1)
+    contents, _ = handheld_lens_contents(-0.05, 1)
     database = write_database(contents, tmp_path / "database.db")
     result = run_main("calibrate", database, "--no-prior", "--seed", "1", "--no-progress")
     assert result.returncode == 0, result.stderr

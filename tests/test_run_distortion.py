@@ -14,15 +14,12 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 import pytest
+from conftest import handheld_lens_contents
 
 from colmap_trifocal import reconstruct
 from colmap_trifocal.cli.run import format_report
-from colmap_trifocal.database.cameras import CameraInfo
-from colmap_trifocal.intrinsics.inputs.prior import default_guess
 from colmap_trifocal.reconstruction.workflow import RunOptions, run_pipeline
-from colmap_trifocal.synthetic.database import scene_contents, write_database
-from colmap_trifocal.synthetic.lenses import with_radial_distortion
-from colmap_trifocal.synthetic.motions import handheld_indoor
+from colmap_trifocal.synthetic.database import write_database
 
 K1 = -0.05
 
@@ -31,14 +28,10 @@ def _default_camera_database(folder: Path, k1: float, k2: float = 0.0) -> tuple[
     """The synthetic handheld set through a (k1, k2) lens, stored as COLMAP stores a new
     camera (SIMPLE_RADIAL, f = 1.2 · max(w, h), centred, k = 0), in ``folder``; and its
     true intrinsics."""
-    scene = with_radial_distortion(handheld_indoor(seed=0), k1, k2)
-    contents = scene_contents(scene)
-    width, height = scene.width, scene.height
-    focal, _, cx, cy = default_guess(width, height)
-    contents.cameras[1] = CameraInfo(1, "SIMPLE_RADIAL", width, height, [focal, cx, cy, 0.0])
+    contents, truth = handheld_lens_contents(k1, 0, k2)
     database = folder / "database.db"
     write_database(contents, database)
-    return database, scene.intrinsics
+    return database, truth
 
 
 @pytest.fixture(scope="module")

@@ -9,15 +9,15 @@ Two estimates of the covariance of θ (the relative corrections of
   triplets of a sequence share images and tracks, so their errors are correlated
   and H over-counts: the std alone is too small there.
 * **Jackknife over images**: the images of the triplets are put into at most
-  ``MAX_GROUPS`` groups (consecutive blocks on a sequence, :func:`image_groups`);
-  each replicate drops one group's images (every tensor that uses one of them) and
-  re-solves from the estimate (the method's local
-  cost: least squares for ``direct``, a few rounds of the MSAC reweighting
-  otherwise); ``C_J = (g − 1)/g Σ (θ_(i) − θ̄)(θ_(i) − θ̄)ᵀ``. Dropping whole
-  images keeps the correlated tensors together. Each replicate is one
-  Gauss–Newton step from the full estimate with the fit's weights
-  (:func:`one_step_replicate`, the linearised jackknife), a small fraction of the
-  cost of re-solving. It errs on the safe side: each replicate drops about 3/g of
+  ``MAX_GROUPS`` groups (consecutive blocks on a sequence, :func:`image_groups`); each
+  replicate drops one group's images (every tensor that uses one of them) and
+  re-solves from the estimate (the method's local cost: least squares for ``direct``,
+  a few rounds of the MSAC reweighting otherwise);
+  ``C_J = (g − 1)/g Σ (θ_(i) − θ̄)(θ_(i) − θ̄)ᵀ``. Dropping whole images keeps the
+  correlated tensors together.
+  Each replicate is one Gauss–Newton step from the full estimate with the fit's
+  weights (:func:`one_step_replicate`, the linearised jackknife), a small fraction of
+  the cost of re-solving. It errs on the safe side: each replicate drops about 3/g of
   the tensors, not the 1/g the formula assumes. It also sees what the curvature
   misses, such as a focal length that varies with the images left out on forward
   motion. Coverage of both: docs/uncertainty.md.
