@@ -16,6 +16,7 @@ from colmap_trifocal.geometry.trifocal import (
     normalize_tensor,
     quartic_constraints,
     tensor_from_cameras,
+    upper_triangular_inverse,
 )
 
 # Ground-truth intrinsics (fx, fy, cx, cy), pixels, of a 3072 x 2048 camera.
@@ -129,6 +130,16 @@ def test_calibrate_tensor_broadcasts_intrinsics() -> None:
     batched = calibrate_tensor(T, K)
     for i in range(4):
         np.testing.assert_allclose(batched[i], calibrate_tensor(T[i], K[i]), atol=1e-15)
+
+
+def test_upper_triangular_inverse_is_the_inverse() -> None:
+    """The closed form calibrate_tensor uses, on a batch with skew and a non-unit corner."""
+    rng = np.random.default_rng(6)
+    K = np.triu(rng.uniform(0.5, 2.0, size=(7, 3, 3))) * rng.choice([-1.0, 1.0], size=(7, 3, 3))
+    np.testing.assert_allclose(upper_triangular_inverse(K), np.linalg.inv(K), rtol=1e-13)
+    np.testing.assert_allclose(
+        K @ upper_triangular_inverse(K), np.broadcast_to(np.eye(3), K.shape), atol=1e-13
+    )
 
 
 @pytest.mark.parametrize("parameter", [0, 1, 2, 3], ids=["fx", "fy", "cx", "cy"])

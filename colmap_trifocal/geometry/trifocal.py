@@ -130,12 +130,31 @@ def calibrate_tensor(T: np.ndarray, K: np.ndarray) -> np.ndarray:
 
     Args:
         T: tensors (..., 3, 3, 3) in the image coordinates that K maps to.
-        K: intrinsics (..., 3, 3), broadcast against T's batch dimensions.
+        K: intrinsics (..., 3, 3), upper triangular, broadcast against T's batch
+            dimensions.
     """
-    K_inv = np.linalg.inv(K)[..., None, :, :]
+    K_inv = upper_triangular_inverse(K)[..., None, :, :]
     inner = K_inv @ T @ np.swapaxes(K_inv, -1, -2)  # K⁻¹ T_j K⁻ᵀ, (..., 3, 3, 3)
     mixed = np.swapaxes(K, -1, -2) @ inner.reshape(inner.shape[:-3] + (3, 9))
     return normalize_tensor(mixed.reshape(mixed.shape[:-1] + (3, 3)))
+
+
+def upper_triangular_inverse(K: np.ndarray) -> np.ndarray:
+    """The inverse (..., 3, 3) of upper-triangular matrices K (..., 3, 3), in closed form
+    (the solve calibrates thousands of tensors per run; a batched LU costs more than
+    the calibration itself). A singular K (a zero diagonal entry) gives non-finite
+    entries, which the solves reject as they do any non-finite residual."""
+    a, s, c = K[..., 0, 0], K[..., 0, 1], K[..., 0, 2]
+    b, d, e = K[..., 1, 1], K[..., 1, 2], K[..., 2, 2]
+    inverse = np.zeros(np.shape(K))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse[..., 0, 0] = 1.0 / a
+        inverse[..., 0, 1] = -s / (a * b)
+        inverse[..., 0, 2] = (s * d - c * b) / (a * b * e)
+        inverse[..., 1, 1] = 1.0 / b
+        inverse[..., 1, 2] = -d / (b * e)
+        inverse[..., 2, 2] = 1.0 / e
+    return inverse
 
 
 def quartic_constraints(T: np.ndarray) -> np.ndarray:
@@ -151,9 +170,11 @@ def quartic_constraints(T: np.ndarray) -> np.ndarray:
     * tr(U_b)² − tr(V_c)² − tr(U_b² − V_c² + (U_c − U_a)²)
     * tr(V_b) tr(U_a − 2U_b − U_c) − tr(V_a) tr(V_c) + 2 tr(V_b U_b)
 
-    Every term is a product of traces and of ``tr(XY)``, which is bilinear, so all of
-    them come from the six traces of (U_1, U_2, U_3, V_1, V_2, V_3) and their 6x6
-    table of ``tr(XY)`` (``Σ X ∘ Y``: the U and V are symmetric), computed at once.
+    Every term is a product of traces or a ``tr(XY)``, which is bilinear, so all of
+    them are one linear map (:data:`_TRACE_COEFFICIENTS`) of the products of the six
+    traces of (U_1, U_2, U_3, V_1, V_2, V_3) and of their 6x6 table of ``tr(XY)``
+    (``Σ X ∘ Y``: the U and V are symmetric). Every product ``T_k T_lᵀ`` of two slices
+    comes from one 9x3 by 3x9 product.
 
     Args:
         T: tensors (..., 3, 3, 3), normally of unit Frobenius norm.
@@ -162,36 +183,75 @@ def quartic_constraints(T: np.ndarray) -> np.ndarray:
         Constraint values (..., 15); zero for calibrated tensors, in the order above
         (the first three for each relabelling, then the last two for each).
     """
-    T_transposed = np.swapaxes(T, -1, -2)
-    U = T @ T_transposed
-    TTn = T @ np.roll(T_transposed, -1, axis=-3)
-    V = TTn + np.swapaxes(TTn, -1, -2)
-    M = np.concatenate([U, V], axis=-3).reshape(T.shape[:-3] + (6, 9))
-    t = M[..., [0, 4, 8]].sum(axis=-1)  # traces, (..., 6)
+    batch = T.shape[:-3]
+    rows = T.reshape(batch + (9, 3))
+    products = (rows @ np.swapaxes(rows, -1, -2)).reshape(batch + (3, 3, 3, 3))
+    # Row 3k + l of ``blocks`` is T_k T_lᵀ, flattened.
+    blocks = np.swapaxes(products, -3, -2).reshape(batch + (9, 9))
+    M = _SLICE_PRODUCTS_TO_UV @ blocks  # rows U_1, U_2, U_3, V_1, V_2, V_3, flattened
+    t = M[..., 0::4].sum(axis=-1)  # traces, (..., 6)
     G = M @ np.swapaxes(M, -1, -2)  # tr(M_i M_j), (..., 6, 6)
-    # tr(D²) of D = U_c − U_a, which both groups of constraints use, per relabelling.
-    traces_DD = [G[..., c, c] - 2.0 * G[..., c, a] + G[..., a, a] for a, _, c in CYCLIC]
+    features = np.concatenate([t[..., :, None] * t[..., None, :], G], axis=-1)
+    return np.asarray(features.reshape(batch + (72,)) @ _TRACE_COEFFICIENTS)
+
+
+def _constraints_from_traces(t: np.ndarray, G: np.ndarray) -> np.ndarray:
+    """The 15 constraints (15,) of :func:`quartic_constraints` written out from the
+    traces t (6,) and the table G (6, 6) of ``tr(M_i M_j)``; quadratic in t, linear
+    in G."""
+    traces_DD = [G[c, c] - 2.0 * G[c, a] + G[a, a] for a, _, c in CYCLIC]  # tr((U_c − U_a)²)
     values = []
     for (a, b, c), trace_DD in zip(CYCLIC, traces_DD, strict=True):
         va, vb, vc = 3 + a, 3 + b, 3 + c
-        trace_D = t[..., c] - t[..., a]
-        values.append(trace_D**2 - 2.0 * trace_DD - t[..., vc] ** 2 + 2.0 * G[..., vc, vc])
+        trace_D = t[c] - t[a]
+        values.append(trace_D**2 - 2.0 * trace_DD - t[vc] ** 2 + 2.0 * G[vc, vc])
         values.append(
-            trace_D * t[..., va]
-            - 2.0 * (G[..., c, va] - G[..., a, va])
-            + t[..., vb] * t[..., vc]
-            - 2.0 * G[..., vb, vc]
+            trace_D * t[va] - 2.0 * (G[c, va] - G[a, va]) + t[vb] * t[vc] - 2.0 * G[vb, vc]
         )
-        values.append((t[..., a] - t[..., b]) * t[..., va] - 2.0 * (G[..., a, va] - G[..., b, va]))
+        values.append((t[a] - t[b]) * t[va] - 2.0 * (G[a, va] - G[b, va]))
     for (a, b, c), trace_DD in zip(CYCLIC, traces_DD, strict=True):
         va, vb, vc = 3 + a, 3 + b, 3 + c
-        values.append(t[..., b] ** 2 - t[..., vc] ** 2 - (G[..., b, b] - G[..., vc, vc] + trace_DD))
-        values.append(
-            t[..., vb] * (t[..., a] - 2.0 * t[..., b] - t[..., c])
-            - t[..., va] * t[..., vc]
-            + 2.0 * G[..., vb, b]
-        )
-    return np.stack(values, axis=-1)
+        values.append(t[b] ** 2 - t[vc] ** 2 - (G[b, b] - G[vc, vc] + trace_DD))
+        values.append(t[vb] * (t[a] - 2.0 * t[b] - t[c]) - t[va] * t[vc] + 2.0 * G[vb, b])
+    return np.array(values)
+
+
+def _trace_coefficients() -> np.ndarray:
+    """(72, 15): the constraints as a linear map of ``[t tᵀ | G]`` (6 rows of 12),
+    flattened: G's part from unit tables, the quadratic form in t by polarisation
+    (``½ (q(eᵢ + eⱼ) − q(eᵢ) − q(eⱼ))``, which is q(eᵢ) where i = j).
+    Every coefficient is a small multiple of 1/2, exact in floating point."""
+    unit, zero_t, zero_G = np.eye(6), np.zeros(6), np.zeros((6, 6))
+
+    def quadratic(t: np.ndarray) -> np.ndarray:
+        return _constraints_from_traces(t, zero_G)
+
+    coefficients = np.zeros((6, 12, 15))
+    for i in range(6):
+        for j in range(6):
+            coefficients[i, 6 + j] = _constraints_from_traces(zero_t, np.outer(unit[i], unit[j]))
+            coefficients[i, j] = 0.5 * (
+                quadratic(unit[i] + unit[j]) - quadratic(unit[i]) - quadratic(unit[j])
+            )
+    return coefficients.reshape(72, 15)
+
+
+def _slice_products_to_uv() -> np.ndarray:
+    """(6, 9): the slice products T_k T_lᵀ (row 3k + l) to U_k (k = l) and
+    V_k = T_k T_{k+1}ᵀ + T_{k+1} T_kᵀ."""
+    selection = np.zeros((6, 9))
+    for k in range(3):
+        following = (k + 1) % 3
+        selection[k, 4 * k] = 1.0
+        selection[3 + k, 3 * k + following] = 1.0
+        selection[3 + k, 3 * following + k] = 1.0
+    return selection
+
+
+#: The constraints' coefficients on ``[t tᵀ | G]`` (:func:`_trace_coefficients`).
+_TRACE_COEFFICIENTS = _trace_coefficients()
+#: :func:`_slice_products_to_uv`.
+_SLICE_PRODUCTS_TO_UV = _slice_products_to_uv()
 
 
 def intrinsics_matrix(params: np.ndarray) -> np.ndarray:
