@@ -336,3 +336,18 @@ def _near_planar_triplet(
     rng = np.random.default_rng(seed)
     P2, P3 = (P[j] + perturbation * np.linalg.norm(P[j]) * rng.normal(size=(3, 4)) for j in (1, 2))
     return x, P2, P3, K0[[0, 1], [0, 1]]
+
+
+def test_point_block_inverses_are_the_pseudo_inverses() -> None:
+    """Cofactors where a block is well conditioned, SVD where it is singular: the
+    pseudo-inverse either way (a point seen along its epipolar direction, a zero block)."""
+    rng = np.random.default_rng(7)
+    B = rng.normal(size=(40, 3, 3))
+    V = B @ np.swapaxes(B, 1, 2)
+    direction = rng.normal(size=(10, 3))
+    V[:10] = np.einsum("ni,nj->nij", direction, direction)  # rank 1
+    V[10] = 0.0
+    expected = np.linalg.pinv(V)
+    inverses = projective_ba.point_block_inverses(V)
+    np.testing.assert_allclose(inverses, expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())
+    np.testing.assert_allclose(inverses[:11], expected[:11], rtol=0, atol=0)

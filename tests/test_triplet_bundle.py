@@ -115,3 +115,22 @@ def test_planar_facade_polished_to_the_general_scene_accuracy():
             assert result.source[name] == "tied" and result.fy == result.fx
         else:
             assert abs(result.intrinsics[index] - truth[index]) < 2 * std, name
+
+
+def test_triangulate_is_the_least_singular_vector_of_the_dlt() -> None:
+    """On noisy tracks in three views: the DLT's least-squares point (its SVD)."""
+    rng = np.random.default_rng(3)
+    cameras = np.stack([np.eye(3, 4)] * 3)
+    cameras[1, :, 3], cameras[2, :, 3] = [1.0, 0.1, 0.0], [2.0, -0.1, 0.2]
+    points = rng.normal(size=(200, 3)) + [0.0, 0.0, 6.0]
+    seen = np.einsum("vij,nj->vni", cameras[:, :, :3], points) + cameras[:, None, :, 3]
+    x = seen[..., :2] / seen[..., 2:] + rng.normal(scale=1e-3, size=(3, 200, 2))
+    rows = np.concatenate(
+        [
+            x[..., 0:1] * cameras[:, None, 2] - cameras[:, None, 0],
+            x[..., 1:2] * cameras[:, None, 2] - cameras[:, None, 1],
+        ],
+        axis=0,
+    )
+    least = np.linalg.svd(np.swapaxes(rows, 0, 1))[2][:, -1]
+    np.testing.assert_allclose(triangulate(cameras, x), least[:, :3] / least[:, 3:], atol=1e-9)

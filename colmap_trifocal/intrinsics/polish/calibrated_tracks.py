@@ -75,7 +75,12 @@ def calibrated_cameras(
 
 
 def triangulate(cameras: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Points (n, 3) from normalised tracks x (v, n, 2) and cameras (v, 3, 4) (linear DLT)."""
+    """Points (n, 3) from normalised tracks x (v, n, 2) and cameras (v, 3, 4) (linear DLT).
+
+    Each point's homogeneous coordinates are the least singular vector of its DLT rows
+    A (2v, 4), taken as the least eigenvector of AᵀA (4, 4): the same vector, and half
+    the cost of an SVD of every A.
+    """
     rows = np.concatenate(
         [
             x[..., 0:1] * cameras[:, None, 2] - cameras[:, None, 0],
@@ -83,7 +88,8 @@ def triangulate(cameras: np.ndarray, x: np.ndarray) -> np.ndarray:
         ],
         axis=0,
     )  # (2v, n, 4)
-    homogeneous = np.linalg.svd(np.swapaxes(rows, 0, 1))[2][:, -1]
+    A = np.swapaxes(rows, 0, 1)
+    homogeneous = np.linalg.eigh(np.swapaxes(A, 1, 2) @ A)[1][..., 0]
     w = homogeneous[:, 3:]
     return homogeneous[:, :3] / np.where(np.abs(w) > 1e-12, w, 1e-12)
 
