@@ -284,8 +284,8 @@ def inverse_3x3(M: np.ndarray) -> np.ndarray:
 
 
 #: A point block whose determinant is below this fraction of its diagonal's product
-#: (Hadamard's bound, 1 for a diagonal block) is inverted by SVD: the cofactors lose
-#: about log10 of the ratio digits, SVD none.
+#: (Hadamard's bound: the fraction is 1 for a diagonal block, 0 for a singular one) is
+#: inverted by SVD: cofactors lose about −log10(fraction) significant digits, SVD none.
 CONDITIONED_BLOCK = 1e-6
 
 

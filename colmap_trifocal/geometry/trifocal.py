@@ -142,8 +142,8 @@ def calibrate_tensor(T: np.ndarray, K: np.ndarray) -> np.ndarray:
 def upper_triangular_inverse(K: np.ndarray) -> np.ndarray:
     """The inverse (..., 3, 3) of upper-triangular matrices K (..., 3, 3), in closed form
     (the solve calibrates thousands of tensors per run; a batched LU costs more than
-    the calibration itself). A singular K (a zero diagonal entry) gives non-finite
-    entries, which the solves reject as they do any non-finite residual."""
+    the calibration itself). A singular K (a zero on the diagonal) gives non-finite
+    entries rather than an exception."""
     a, s, c = K[..., 0, 0], K[..., 0, 1], K[..., 0, 2]
     b, d, e = K[..., 1, 1], K[..., 1, 2], K[..., 2, 2]
     inverse = np.zeros(np.shape(K))
