@@ -144,9 +144,10 @@ def upper_triangular_inverse(K: np.ndarray) -> np.ndarray:
     (the solve calibrates thousands of tensors per run; a batched LU costs more than
     the calibration itself). A singular K (a zero on the diagonal) gives non-finite
     entries rather than an exception."""
+    K = np.asarray(K, dtype=float)
     a, s, c = K[..., 0, 0], K[..., 0, 1], K[..., 0, 2]
     b, d, e = K[..., 1, 1], K[..., 1, 2], K[..., 2, 2]
-    inverse = np.zeros(np.shape(K))
+    inverse = np.zeros(K.shape)
     with np.errstate(divide="ignore", invalid="ignore"):
         inverse[..., 0, 0] = 1.0 / a
         inverse[..., 0, 1] = -s / (a * b)
