@@ -285,7 +285,9 @@ def _finish(
         start, fallback = best.tensors.start, best.fallback
         estimate = checked_estimate(best, camera.camera_id, method)
     with inputs.clock("polish"):
-        polished = Polished(estimate, fallback.relative_std, best.agreeing, None)
+        polished = Polished(
+            estimate, fallback.relative_std, best.agreeing, None, fallback.free_parameters
+        )
         if method != "msac-opt" or not options.triplet_bundle:
             return Finished(best, polished, None)
         by_images = inputs.tracks.by_images()
@@ -312,7 +314,7 @@ def _finish(
                 by_images,
                 start,
                 polished.intrinsics,
-                fallback.free_parameters,
+                polished.free_parameters,
                 camera,
                 options.tau,
                 fallback.solution.inlier_tensors,

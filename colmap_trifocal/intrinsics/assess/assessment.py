@@ -113,7 +113,7 @@ def assess(given: AssessInput) -> CameraCalibration:
             note.replace("the prior", _SOURCE_WORDS[given.candidate.held_source], 1)
             if note.startswith("fx, fy")
             else note
-            for note in fallback.free_parameters.assumptions()
+            for note in given.polished.free_parameters.assumptions()
         ],
         estimated=reported.estimated,
         source=reported.source,
@@ -143,7 +143,7 @@ def _reported(given: AssessInput) -> _Reported:
     std (a held value is known as well as its evidence)."""
     camera, fallback, candidate = given.data.camera, given.fallback, given.candidate
     start, polished, lens = given.start, given.polished, given.lens
-    free_parameters = fallback.free_parameters
+    free_parameters = polished.free_parameters
     focal_scale = np.array([start[0], start[1], start[0], start[1]])
     estimate, relative_std, distortion, lens_note = with_lens(
         polished.intrinsics, polished.relative_std, lens, camera.model, focal_scale

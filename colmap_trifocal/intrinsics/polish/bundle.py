@@ -131,17 +131,22 @@ class PolishInput:
     workers: int | None = None
 
 
-def polish_intrinsics(given: PolishInput) -> TripletBundleResult | None:
+def polish_intrinsics(
+    given: PolishInput, free_parameters: FreeParameters | None = None
+) -> TripletBundleResult | None:
     """The ML intrinsics of the agreeing triplets (``λ < τ²``), from the constraint
     estimate (held values included); each tensor's ``inliers`` pick its tracks.
 
-    Returns None when the free parameters are not expressible
-    (:func:`intrinsics.polish.camera_setup.pycolmap_camera_setup`), no triplet agrees,
-    or Ceres fails.
+    ``free_parameters`` are those the adjustment estimates (default: the constraint
+    solve's, ``given.fallback.free_parameters``). Returns None when they are not
+    expressible (:func:`intrinsics.polish.camera_setup.pycolmap_camera_setup`), no
+    triplet agrees, or Ceres fails.
     """
     tensors, tracks, start, estimate = given.tensors, given.tracks, given.start, given.estimate
     tau, workers = given.tau, given.workers
-    start_values = camera_start(given.fallback.free_parameters, estimate)
+    if free_parameters is None:
+        free_parameters = given.fallback.free_parameters
+    start_values = camera_start(free_parameters, estimate)
     if start_values is None or not tensors:
         return None
     setup, intrinsics = start_values

@@ -29,6 +29,22 @@ polish can change which triplets count, and always runs.
 Its std is then the largest of the constraint solve's (which counts held and tied
 values' uncertainty), its covariance's and its jackknife's. Otherwise everything is
 returned unchanged.
+
+**A principal point the constraint solve held** (:func:`release_principal_point`).
+Each triplet's constraints say little about the principal point where its tracks
+cover a small part of the image (an object capture, a ring around an object): the
+solve holds it at the start. The agreeing triplets adjusted together with one
+camera can still determine it, as a reconstruction of all the images would. The
+polish is then first run with the principal point estimated as well, and kept
+where at least as many triplets agree with it as with the constraints and its
+curvature's std (``σ² (Σ H_t)⁻¹``) is within the solve's ``FALLBACK_FACTOR``
+tolerances for every parameter it estimates; otherwise the polish runs as above.
+The jackknife is not part of that test: where a few triplets carry most of what is
+known about the principal point, leaving out a group of images moves it far, and
+that spread is reported instead. The std of a parameter so estimated is the
+polish's (the larger of its covariance's and its jackknife's), not the held value's
+(docs/accuracy.md, seventeenth session).
+
 Intrinsics in pixels; std relative to the focal length (θ units) unless named.
 """
 
@@ -43,6 +59,8 @@ from ...common.log import logger
 from ...geometry.tensor_estimation import TripletTensor
 from ..results import PARAMETER_NAMES
 from ..solve.fallback import FallbackSolution
+from ..solve.observability import FALLBACK_FACTOR
+from ..solve.parametrization import FreeParameters
 from ..solve.uncertainty import jackknife_covariance
 from .bundle import PolishInput, TripletBundleResult, polish_intrinsics, predict_polish
 from .camera_setup import pycolmap_camera_setup
@@ -71,16 +89,31 @@ class Polished:
         relative_std: (4,) std relative to the focal length.
         agreeing: triplets that agree with ``intrinsics``.
         summary: the JSON ``triplet_bundle`` report, None when it did not run.
+        free_parameters: which of (fx, fy, cx, cy) ``intrinsics`` estimates: the
+            constraint solve's, and the principal point where the polish estimated
+            what the solve held (:func:`release_principal_point`).
     """
 
     intrinsics: np.ndarray
     relative_std: np.ndarray
     agreeing: int
     summary: dict[str, Any] | None
+    free_parameters: FreeParameters
 
 
 def polish(given: PolishInput) -> Polished:
     """The polished estimate, or the constraint estimate with the reason it was kept."""
+    released, why_held = release_principal_point(given)
+    if released is not None:
+        return released
+    polished = _polish_solved(given)
+    if why_held is not None and polished.summary is not None:
+        polished.summary["principal_point"] = f"held: {why_held}"
+    return polished
+
+
+def _polish_solved(given: PolishInput) -> Polished:
+    """The polish of the parameters the constraint solve estimated (see the module)."""
     tensors, tracks, start, estimate = given.tensors, given.tracks, given.start, given.estimate
     fallback, agreeing, camera_id, workers = (
         given.fallback,
@@ -88,17 +121,17 @@ def polish(given: PolishInput) -> Polished:
         given.camera_id,
         given.workers,
     )
-    unchanged = Polished(estimate, fallback.relative_std, agreeing, None)
     free_parameters = fallback.free_parameters
+    unchanged = Polished(estimate, fallback.relative_std, agreeing, None, free_parameters)
     if pycolmap_camera_setup(free_parameters) is None:
         return unchanged
-    focal_scale = np.array([start[0], start[1], start[0], start[1]])
+    focal_scale = _focal_scale(start)
     constraints = dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True))
     skip = not_worth_it(tensors, tracks, start, estimate, fallback, focal_scale, workers)
     if skip:
         logger.info("camera %d: bundle adjustment of the triplets not run: %s", camera_id, skip)
         not_run = {"used": False, "agreeing": None, "constraints": constraints, "rejected": skip}
-        return Polished(estimate, fallback.relative_std, agreeing, not_run)
+        return Polished(estimate, fallback.relative_std, agreeing, not_run, free_parameters)
     result = polish_intrinsics(given)
     summary: dict[str, object] = {
         "used": False,
@@ -109,9 +142,83 @@ def polish(given: PolishInput) -> Polished:
     if why or result is None:
         logger.info("camera %d: bundle adjustment of the triplets not kept: %s", camera_id, why)
         summary["rejected"] = why
-        return Polished(estimate, fallback.relative_std, agreeing, summary)
+        return Polished(estimate, fallback.relative_std, agreeing, summary, free_parameters)
     summary["used"] = True
     relative_std = np.maximum(fallback.relative_std, result.std / focal_scale)
+    _log_kept(camera_id, result)
+    return Polished(
+        result.intrinsics, relative_std, int(result.agreeing.sum()), summary, free_parameters
+    )
+
+
+def release_principal_point(given: PolishInput) -> tuple[Polished | None, str | None]:
+    """The polish with the principal point estimated where the constraint solve held
+    it (see the module), and None with why it stays held where it is not kept
+    (None, None where the solve held no principal point coordinate, or held the
+    focal length too)."""
+    fallback, start = given.fallback, given.start
+    solved = fallback.free_parameters
+    if (solved.cx and solved.cy) or solved.focal == "held":
+        return None, None
+    wider = FreeParameters(solved.focal, cx=True, cy=True)
+    result = polish_intrinsics(given, wider)
+    focal_scale = _focal_scale(start)
+    why = _not_determined(result, wider, focal_scale, fallback.tolerances, given.agreeing)
+    if why or result is None:
+        logger.info(
+            "camera %d: the principal point stays held: the triplets' adjustment %s",
+            given.camera_id,
+            why,
+        )
+        return None, why
+    # The solve's estimated parameters keep at least its std (as in the polish);
+    # the principal point has the polish's own, not the held value's.
+    relative_std = result.std / focal_scale
+    relative_std = np.where(
+        _estimated(fallback), np.maximum(fallback.relative_std, relative_std), relative_std
+    )
+    summary: dict[str, object] = {
+        "used": True,
+        "agreeing": int(result.agreeing.sum()),
+        "constraints": dict(zip(PARAMETER_NAMES, map(float, given.estimate), strict=True)),
+        "principal_point": "estimated by the adjustment (the constraint solve held it)",
+    }
+    _log_kept(given.camera_id, result)
+    kept = Polished(result.intrinsics, relative_std, int(result.agreeing.sum()), summary, wider)
+    return kept, None
+
+
+def _not_determined(
+    result: TripletBundleResult | None,
+    free_parameters: FreeParameters,
+    focal_scale: np.ndarray,
+    tolerances: np.ndarray,
+    agreeing: int,
+) -> str | None:
+    """Why an adjustment of ``free_parameters`` does not determine them: it failed, fewer
+    triplets agree with it than with the constraints (``agreeing``), or the std of
+    its curvature exceeds ``FALLBACK_FACTOR`` tolerances for one of them; None when
+    it determines them."""
+    if result is None:
+        return "failed"
+    if int(result.agreeing.sum()) < agreeing:
+        agree = int(result.agreeing.sum())
+        return f"has {agree} triplets agree with it, {agreeing} the constraints"
+    estimated = _estimated_by(free_parameters)
+    ratios = (result.covariance_std / focal_scale / tolerances)[estimated]
+    if not np.all(np.isfinite(ratios)) or ratios.max() >= FALLBACK_FACTOR:
+        ranked = np.where(np.isfinite(ratios), ratios, np.inf)
+        worst = PARAMETER_NAMES[int(np.flatnonzero(estimated)[np.argmax(ranked)])]
+        return f"leaves {worst} beyond {FALLBACK_FACTOR:g} tolerances"
+    return None
+
+
+def _focal_scale(start: np.ndarray) -> np.ndarray:
+    """(4,) what θ is relative to: (fx0, fy0, fx0, fy0), pixels."""
+    return np.array([start[0], start[1], start[0], start[1]], dtype=float)
+
+
+def _log_kept(camera_id: int, result: TripletBundleResult) -> None:
     logger.info(
         "camera %d: bundle adjustment of %d agreeing triplets: fx %.2f, fy %.2f, cx %.2f, "
         "cy %.2f px",
@@ -119,7 +226,6 @@ def polish(given: PolishInput) -> Polished:
         int(result.agreeing.sum()),
         *result.intrinsics,
     )
-    return Polished(result.intrinsics, relative_std, int(result.agreeing.sum()), summary)
 
 
 def not_worth_it(
@@ -156,9 +262,12 @@ def not_worth_it(
 
 def _estimated(fallback: FallbackSolution) -> np.ndarray:
     """(4,) bool: which of (fx, fy, cx, cy) the constraint solve estimated."""
-    return np.asarray(
-        fallback.free_parameters.parametrization(np.ones(4), np.ones(4)).matrix.any(axis=1)
-    )
+    return _estimated_by(fallback.free_parameters)
+
+
+def _estimated_by(free_parameters: FreeParameters) -> np.ndarray:
+    """(4,) bool: which of (fx, fy, cx, cy) ``free_parameters`` estimate (a tied fy counts)."""
+    return np.asarray(free_parameters.parametrization(np.ones(4), np.ones(4)).matrix.any(axis=1))
 
 
 def _variances(
