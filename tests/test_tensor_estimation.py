@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from colmap_trifocal.geometry import projective_ba
-from colmap_trifocal.geometry.projective_ba import refine_triplet
+from colmap_trifocal.geometry.projective_ba import refine_triplet, refined_cost
 from colmap_trifocal.geometry.tensor_estimation import (
     TensorEstimationOptions,
     TripletTensor,
@@ -161,6 +161,18 @@ def test_projective_ba_does_not_increase_the_cost(noisy) -> None:
     # Refining an optimum again does not move the cost.
     again = refine_triplet(x, refined.P2, refined.P3, scale, points=refined.points)
     assert again.squared_errors.sum() <= refined.squared_errors.sum() * (1 + 1e-12)
+
+
+def test_refined_cost_is_the_refinements_cost_and_sigma(noisy) -> None:
+    """The polish's projective reference: the same LM, without the covariance."""
+    scene, K0, _ = noisy
+    x = normalised_tracks(scene, K0)
+    scale = K0[[0, 1], [0, 1]]
+    P2, P3 = cameras_from_tensor(linear_tensor(*x[:, :50]))
+    full = refine_triplet(x, P2, P3, scale, max_iterations=20, tolerance=1e-9)
+    squared_errors, sigma = refined_cost(x, P2, P3, scale, max_iterations=20, tolerance=1e-9)
+    np.testing.assert_array_equal(squared_errors, full.squared_errors)
+    assert sigma == full.sigma and full.iterations > 1
 
 
 def test_too_few_tracks_give_none() -> None:

@@ -8,6 +8,7 @@ import pytest
 from colmap_trifocal import CalibrationOptions, calibrate_contents
 from colmap_trifocal.geometry.tensor_estimation import TripletTensor
 from colmap_trifocal.geometry.trifocal import normalize_tensor, tensor_from_cameras
+from colmap_trifocal.intrinsics.polish import calibrated_tracks
 from colmap_trifocal.intrinsics.polish.calibrated_tracks import calibrated_cameras, triangulate
 from colmap_trifocal.intrinsics.polish.camera_setup import pycolmap_camera_setup
 from colmap_trifocal.intrinsics.solve.parametrization import FULL, SINGLE_FOCAL, FreeParameters
@@ -134,3 +135,34 @@ def test_triangulate_is_the_least_singular_vector_of_the_dlt() -> None:
     )
     least = np.linalg.svd(np.swapaxes(rows, 0, 1))[2][:, -1]
     np.testing.assert_allclose(triangulate(cameras, x), least[:, :3] / least[:, 3:], atol=1e-9)
+
+
+@pytest.mark.parametrize("views", [(0, 3, 6), (1, 2, 4), (2, 5, 9)])
+def test_calibrated_cameras_voted_by_a_subset_are_those_every_track_votes(
+    views: tuple[int, int, int], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``CHEIRALITY_TRACKS`` evenly spaced tracks choose each essential matrix's
+    decomposition as all of them do: the same cameras, on noisy tracks at a K 3 % off."""
+    scene = facade_scene(relief=0.3, seed=1, noise_px=0.5, num_points=1500)
+    seen = np.all(scene.visible[list(views)], axis=0) & ~scene.outliers
+    assert seen.sum() > 3 * calibrated_tracks.CHEIRALITY_TRACKS
+    truth = scene.intrinsics
+    K = truth * np.array([1.03, 1.03, 1.0, 1.0]) + np.array([0.0, 0.0, 8.0, -6.0])
+    normalised = (scene.observations[list(views)][:, seen] - K[2:]) / K[:2]
+    cameras = _relative_cameras(scene, views)
+    tensor = TripletTensor(
+        image_ids=(1, 2, 3),
+        tensor=normalize_tensor(tensor_from_cameras(cameras[1], cameras[2])),
+        P2=cameras[1],
+        P3=cameras[2],
+        camera_covariance=np.eye(24),
+        num_tracks=int(seen.sum()),
+        num_inliers=int(seen.sum()),
+        sigma_px=0.5,
+        inliers=np.ones(int(seen.sum()), dtype=bool),
+    )
+    subset = calibrated_cameras(tensor, normalised, truth, K)
+    monkeypatch.setattr(calibrated_tracks, "CHEIRALITY_TRACKS", 10**9)
+    everything = calibrated_cameras(tensor, normalised, truth, K)
+    assert subset is not None and everything is not None
+    np.testing.assert_array_equal(subset, everything)

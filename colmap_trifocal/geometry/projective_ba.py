@@ -147,18 +147,7 @@ def refine_triplet(
             Gauss–Newton step predicts less than ``DECREMENT_STOP`` σ²).
     """
     scale = np.asarray(pixel_scale, dtype=float)
-    P2 = P2 / np.linalg.norm(P2)
-    P3 = P3 / np.linalg.norm(P3)
-    points = initial_points(x, P2, P3) if points is None else points.copy()
-    cost = float(np.sum(_residuals(x, P2, P3, points, scale) ** 2))
-    state = _State(P2, P3, points, cost)
-    iteration = 0
-    n = len(points)
-    dof = max(6 * n - (3 * n + 24 - GAUGE_DIMENSION), 1)
-    for iteration in range(1, max_iterations + 1):  # noqa: B007 - reported below
-        improved, relative_decrease, near_minimum = _iterate(state, x, scale, dof)
-        if not improved or relative_decrease < tolerance or near_minimum:
-            break
+    state, iteration, dof = _minimise(x, P2, P3, scale, points, max_iterations, tolerance)
     U, V, W, _, _, r = _linearise(x, state.P2, state.P3, state.points, scale)
     S = U - _contract_points(W @ point_block_inverses(V), W)
     sigma2 = state.cost / dof
@@ -171,6 +160,50 @@ def refine_triplet(
         sigma=float(np.sqrt(sigma2)),
         iterations=iteration,
     )
+
+
+def refined_cost(
+    x: np.ndarray,
+    P2: np.ndarray,
+    P3: np.ndarray,
+    pixel_scale: np.ndarray,
+    max_iterations: int = 30,
+    tolerance: float = 1e-4,
+) -> tuple[np.ndarray, float]:
+    """:func:`refine_triplet`'s squared errors (n,) px² (summed over the 3 views) and its
+    σ (px), the same values, without the cameras' covariance it does not need (one
+    linearisation and the Schur complement fewer): the cost of the projective fit that
+    a calibrated fit of the same tracks is compared with."""
+    scale = np.asarray(pixel_scale, dtype=float)
+    state, _, dof = _minimise(x, P2, P3, scale, None, max_iterations, tolerance)
+    r = _residuals(x, state.P2, state.P3, state.points, scale)
+    return np.einsum("nva,nva->n", r, r), float(np.sqrt(state.cost / dof))
+
+
+def _minimise(
+    x: np.ndarray,
+    P2: np.ndarray,
+    P3: np.ndarray,
+    scale: np.ndarray,
+    points: np.ndarray | None,
+    max_iterations: int,
+    tolerance: float,
+) -> tuple[_State, int, int]:
+    """The Levenberg–Marquardt iterations of :func:`refine_triplet`: where they end,
+    how many ran and the residuals' degrees of freedom."""
+    P2 = P2 / np.linalg.norm(P2)
+    P3 = P3 / np.linalg.norm(P3)
+    points = initial_points(x, P2, P3) if points is None else points.copy()
+    cost = float(np.sum(_residuals(x, P2, P3, points, scale) ** 2))
+    state = _State(P2, P3, points, cost)
+    iteration = 0
+    n = len(points)
+    dof = max(6 * n - (3 * n + 24 - GAUGE_DIMENSION), 1)
+    for iteration in range(1, max_iterations + 1):  # noqa: B007 - returned below
+        improved, relative_decrease, near_minimum = _iterate(state, x, scale, dof)
+        if not improved or relative_decrease < tolerance or near_minimum:
+            break
+    return state, iteration, dof
 
 
 @dataclass

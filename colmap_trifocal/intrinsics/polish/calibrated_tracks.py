@@ -3,10 +3,11 @@
 For a tensor (cameras ``P2``, ``P3`` of its ML projective fit, in coordinates
 normalised by the start K0) and a camera K: the essential matrices ``E = [a]ₓ A`` of
 ``K⁻¹ K0 [A | a]`` (view 1 is ``[I | 0]``), decomposed with OpenCV
-(:func:`cv2.recoverPose`, cheirality on the tracks), view 3's baseline scale by linear
-least squares on the tracks triangulated from views 1–2, and the tracks triangulated
-from all three views. The projective fit's own cost is the reference the calibrated
-fit's likelihood ratio is measured against. Pixels in COLMAP's convention.
+(:func:`cv2.recoverPose`, cheirality on up to ``CHEIRALITY_TRACKS`` of the tracks),
+view 3's baseline scale by linear least squares on the tracks triangulated from views
+1–2, and the tracks triangulated from all three views. The projective fit's own cost
+is the reference the calibrated fit's likelihood ratio is measured against. Pixels in
+COLMAP's convention.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import numpy as np
 
 from ...common.parallel import map_jobs
 from ...common.sampling import evenly_spaced
-from ...geometry.projective_ba import refine_triplet
+from ...geometry.projective_ba import refined_cost
 from ...geometry.tensor_estimation import TripletTensor
 from ...geometry.trifocal import intrinsics_matrix
 
@@ -33,6 +34,13 @@ PROJECTIVE_ITERATIONS = 20
 PROJECTIVE_TOLERANCE = 1e-9
 #: Unknowns of a projective triplet beyond its points (two 3x4 cameras, less gauge).
 PROJECTIVE_PARAMETERS = 18
+#: Tracks (evenly spaced) whose cheirality chooses among an essential matrix's four
+#: decompositions: where the chosen one has at least ``DECISIVE_SHARE`` of them in front
+#: of both cameras (the others then have few), a hundred choose as all 500 would, at a
+#: fifth of OpenCV's cost; a vote less clear (a K far off, a lens's bent tracks) is
+#: taken again on every track.
+CHEIRALITY_TRACKS = 100
+DECISIVE_SHARE = 0.9
 
 
 def calibrated_cameras(
@@ -50,13 +58,16 @@ def calibrated_cameras(
     """
     M = np.linalg.solve(intrinsics_matrix(start), intrinsics_matrix(intrinsics))  # K0⁻¹ K
     M_inverse = np.linalg.inv(M)
+    voters = x[:, evenly_spaced(x.shape[1], CHEIRALITY_TRACKS)]
     poses = []
     for view, P in ((1, tensor.P2), (2, tensor.P3)):
         A, a = M_inverse @ P[:, :3] @ M, M_inverse @ P[:, 3]
         essential = np.cross(a, A, axisa=0, axisb=0, axisc=0)  # [a]ₓ A
         essential = essential / np.linalg.norm(essential)
         try:
-            count, R, t, _ = cv2.recoverPose(essential, x[0], x[view], np.eye(3))
+            count, R, t, _ = cv2.recoverPose(essential, voters[0], voters[view], np.eye(3))
+            if count < DECISIVE_SHARE * voters.shape[1] and voters.shape[1] < x.shape[1]:
+                count, R, t, _ = cv2.recoverPose(essential, x[0], x[view], np.eye(3))
         except cv2.error:
             return None
         if count == 0:
@@ -128,7 +139,7 @@ def _observed_job(job: tuple[Any, ...]) -> Observed | None:
     pixels = inlier_pixels(tensor, tracks, max_tracks)
     if pixels.shape[1] <= PROJECTIVE_PARAMETERS // 3:
         return None
-    fit = refine_triplet(
+    squared_errors, sigma = refined_cost(
         (pixels - start[2:]) / start[:2],
         tensor.P2,
         tensor.P3,
@@ -136,10 +147,10 @@ def _observed_job(job: tuple[Any, ...]) -> Observed | None:
         max_iterations=PROJECTIVE_ITERATIONS,
         tolerance=PROJECTIVE_TOLERANCE,
     )
-    cost = float(fit.squared_errors.sum())
-    if not (np.isfinite(cost) and fit.sigma > 0):
+    cost = float(squared_errors.sum())
+    if not (np.isfinite(cost) and sigma > 0):
         return None
-    return Observed(index, tensor, pixels, cost, fit.sigma**2)
+    return Observed(index, tensor, pixels, cost, sigma**2)
 
 
 def inlier_pixels(
