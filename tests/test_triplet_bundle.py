@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -26,6 +28,21 @@ def _relative_cameras(scene, views: tuple[int, int, int]) -> np.ndarray:
     return np.stack(cameras)
 
 
+def _true_tensor(cameras: np.ndarray, seen: np.ndarray, sigma_px: float = 1.0) -> TripletTensor:
+    """A tensor of the true calibrated cameras (3, 3, 4) over the tracks ``seen`` (all inliers)."""
+    return TripletTensor(
+        image_ids=(1, 2, 3),
+        tensor=normalize_tensor(tensor_from_cameras(cameras[1], cameras[2])),
+        P2=cameras[1],
+        P3=cameras[2],
+        camera_covariance=np.eye(24),
+        num_tracks=int(seen.sum()),
+        num_inliers=int(seen.sum()),
+        sigma_px=sigma_px,
+        inliers=np.ones(int(seen.sum()), dtype=bool),
+    )
+
+
 def test_calibrated_cameras_recover_the_true_relative_poses():
     scene = facade_scene(relief=0.3, seed=0, noise_px=0.0, num_points=400)
     views = (0, 3, 6)
@@ -34,17 +51,8 @@ def test_calibrated_cameras_recover_the_true_relative_poses():
     pixels = scene.observations[list(views)][:, seen]
     normalised = (pixels - truth[2:]) / truth[:2]
     cameras = _relative_cameras(scene, views)
-    tensor = TripletTensor(
-        image_ids=(1, 4, 7),
-        tensor=normalize_tensor(tensor_from_cameras(cameras[1], cameras[2])),
-        P2=cameras[1] * 3.0,  # projective cameras: any scale
-        P3=cameras[2] * -0.5,
-        camera_covariance=np.eye(24),
-        num_tracks=int(seen.sum()),
-        num_inliers=int(seen.sum()),
-        sigma_px=1.0,
-        inliers=np.ones(int(seen.sum()), dtype=bool),
-    )
+    # Projective cameras: any scale.
+    tensor = replace(_true_tensor(cameras, seen), P2=cameras[1] * 3.0, P3=cameras[2] * -0.5)
     found = calibrated_cameras(tensor, normalised, truth, truth)
     assert found is not None
     for view in (1, 2):
@@ -150,17 +158,7 @@ def test_calibrated_cameras_voted_by_a_subset_are_those_every_track_votes(
     K = truth * np.array([1.03, 1.03, 1.0, 1.0]) + np.array([0.0, 0.0, 8.0, -6.0])
     normalised = (scene.observations[list(views)][:, seen] - K[2:]) / K[:2]
     cameras = _relative_cameras(scene, views)
-    tensor = TripletTensor(
-        image_ids=(1, 2, 3),
-        tensor=normalize_tensor(tensor_from_cameras(cameras[1], cameras[2])),
-        P2=cameras[1],
-        P3=cameras[2],
-        camera_covariance=np.eye(24),
-        num_tracks=int(seen.sum()),
-        num_inliers=int(seen.sum()),
-        sigma_px=0.5,
-        inliers=np.ones(int(seen.sum()), dtype=bool),
-    )
+    tensor = _true_tensor(cameras, seen, sigma_px=0.5)
     subset = calibrated_cameras(tensor, normalised, truth, K)
     monkeypatch.setattr(calibrated_tracks, "CHEIRALITY_TRACKS", 10**9)
     everything = calibrated_cameras(tensor, normalised, truth, K)
