@@ -29,7 +29,7 @@ from ..results import (
 from ..solve.constraints import ConstraintSolution
 from ..solve.fallback import FallbackSolution
 from ..solve.parametrization import FreeParameters
-from ..solve.theta import fold_focal_sign, theta_to_intrinsics
+from ..solve.theta import focal_scale, fold_focal_sign, theta_to_intrinsics
 from ..start.candidates import StartCandidate
 from ..start.focal_search import FocalSearchResult
 from .diagnosis import diagnose
@@ -144,9 +144,9 @@ def _reported(given: AssessInput) -> _Reported:
     camera, fallback, candidate = given.data.camera, given.fallback, given.candidate
     start, polished, lens = given.start, given.polished, given.lens
     free_parameters = polished.free_parameters
-    focal_scale = np.array([start[0], start[1], start[0], start[1]])
+    scale = focal_scale(start)
     estimate, relative_std, distortion, lens_note = with_lens(
-        polished.intrinsics, polished.relative_std, lens, camera.model, focal_scale
+        polished.intrinsics, polished.relative_std, lens, camera.model, scale
     )
     estimated = free_parameters.estimated(single_focal=camera.single_focal)
     within = (relative_std < fallback.tolerances) & fallback.moved
@@ -158,14 +158,14 @@ def _reported(given: AssessInput) -> _Reported:
         # axis's focal length is known no better than the sensor's aspect ratio.
         relative_std = relative_std.copy()
         relative_std[:2] = np.hypot(relative_std[:2], SQUARE_PIXELS_STD)
-    std = relative_std * focal_scale
-    unconstrained = fallback.unconstrained.relative_std * focal_scale
+    std = relative_std * scale
+    unconstrained = fallback.unconstrained.relative_std * scale
     source = parameter_sources(estimated, free_parameters, candidate.held_source)
     reported_std = {
         name: finite_or_none(s) if estimated[name] else None
         for name, s in zip(PARAMETER_NAMES, std, strict=True)
     }
-    held_focal = np.array([candidate.held[0], candidate.held[1]] * 2)
+    held_focal = focal_scale(candidate.held)
     for index, name in enumerate(PARAMETER_NAMES):
         if source[name] in ("focal-search", "prior"):
             # It stays held where the lens adjustment refined it with the rest of the
@@ -177,7 +177,7 @@ def _reported(given: AssessInput) -> _Reported:
         estimate = estimate.copy()
         fitted_focal = float(np.sqrt(estimate[0] * estimate[1]))
         prior = np.asarray(given.data.prior, float)
-        start_std = candidate.held_std * np.array([prior[0], prior[1], prior[0], prior[1]])
+        start_std = candidate.held_std * focal_scale(prior)
         held = held_where_indecisive(
             estimate, reported_std, source, prior, start_std, tie_fy=camera.single_focal
         )

@@ -63,6 +63,7 @@ from ..solve.uncertainty import (
 )
 from .calibrated_tracks import (
     MAX_TRACKS,
+    Observed,
     calibrated_cameras,
     inlier_pixels,
     observed_tracks,
@@ -132,15 +133,20 @@ class PolishInput:
 
 
 def polish_intrinsics(
-    given: PolishInput, free_parameters: FreeParameters | None = None
+    given: PolishInput,
+    free_parameters: FreeParameters | None = None,
+    *,
+    observed: list[Observed] | None = None,
 ) -> TripletBundleResult | None:
     """The ML intrinsics of the agreeing triplets (``λ < τ²``), from the constraint
     estimate (held values included); each tensor's ``inliers`` pick its tracks.
 
     ``free_parameters`` are those the adjustment estimates (default: the constraint
-    solve's, ``given.fallback.free_parameters``). Returns None when they are not
-    expressible (:func:`intrinsics.polish.camera_setup.pycolmap_camera_setup`), no
-    triplet agrees, or Ceres fails.
+    solve's, ``given.fallback.free_parameters``); ``observed`` (the tensors' tracks and
+    projective costs, :func:`observed_tracks`) is computed where not given. Returns
+    None when they are not expressible
+    (:func:`intrinsics.polish.camera_setup.pycolmap_camera_setup`), no triplet agrees,
+    or Ceres fails.
     """
     tensors, tracks, start, estimate = given.tensors, given.tracks, given.start, given.estimate
     tau, workers = given.tau, given.workers
@@ -151,7 +157,8 @@ def polish_intrinsics(
         return None
     setup, intrinsics = start_values
     limit = tau**2
-    observed = observed_tracks(tensors, tracks, start, workers=workers)
+    if observed is None:
+        observed = observed_tracks(tensors, tracks, start, workers=workers)
     shared = shared_camera(observed, start, intrinsics, setup.model, given.size, workers)
     if shared is None:
         return None

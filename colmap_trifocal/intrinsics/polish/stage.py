@@ -61,8 +61,10 @@ from ..results import PARAMETER_NAMES
 from ..solve.fallback import FallbackSolution
 from ..solve.observability import FALLBACK_FACTOR
 from ..solve.parametrization import FreeParameters
+from ..solve.theta import focal_scale
 from ..solve.uncertainty import jackknife_covariance
 from .bundle import PolishInput, TripletBundleResult, polish_intrinsics, predict_polish
+from .calibrated_tracks import Observed, observed_tracks
 from .camera_setup import pycolmap_camera_setup
 
 #: Largest ratio of the polish's jackknife variance to the constraint solve's at
@@ -103,17 +105,28 @@ class Polished:
 
 def polish(given: PolishInput) -> Polished:
     """The polished estimate, or the constraint estimate with the reason it was kept."""
-    released, why_held = release_principal_point(given)
+    if not held_principal_point(given.fallback.free_parameters):
+        return _polish_solved(given)
+    # Both adjustments below start from the same tracks and projective costs.
+    observed = observed_tracks(given.tensors, given.tracks, given.start, workers=given.workers)
+    released, why_held = release_principal_point(given, observed)
     if released is not None:
         return released
-    polished = _polish_solved(given)
-    if why_held is not None and polished.summary is not None:
+    polished = _polish_solved(given, observed)
+    if polished.summary is not None:
         polished.summary["principal_point"] = f"held: {why_held}"
     return polished
 
 
-def _polish_solved(given: PolishInput) -> Polished:
-    """The polish of the parameters the constraint solve estimated (see the module)."""
+def held_principal_point(solved: FreeParameters) -> bool:
+    """Whether the constraint solve held a principal point coordinate and estimated the
+    focal length: what :func:`release_principal_point` may estimate."""
+    return not (solved.cx and solved.cy) and solved.focal != "held"
+
+
+def _polish_solved(given: PolishInput, observed: list[Observed] | None = None) -> Polished:
+    """The polish of the parameters the constraint solve estimated (see the module);
+    ``observed``: the tensors' tracks and projective costs where already computed."""
     tensors, tracks, start, estimate = given.tensors, given.tracks, given.start, given.estimate
     fallback, agreeing, camera_id, workers = (
         given.fallback,
@@ -125,55 +138,50 @@ def _polish_solved(given: PolishInput) -> Polished:
     unchanged = Polished(estimate, fallback.relative_std, agreeing, None, free_parameters)
     if pycolmap_camera_setup(free_parameters) is None:
         return unchanged
-    focal_scale = _focal_scale(start)
+    scale = focal_scale(start)
     constraints = dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True))
-    skip = not_worth_it(tensors, tracks, start, estimate, fallback, focal_scale, workers)
+    skip = not_worth_it(tensors, tracks, start, estimate, fallback, scale, workers)
     if skip:
         logger.info("camera %d: bundle adjustment of the triplets not run: %s", camera_id, skip)
         not_run = {"used": False, "agreeing": None, "constraints": constraints, "rejected": skip}
         return Polished(estimate, fallback.relative_std, agreeing, not_run, free_parameters)
-    result = polish_intrinsics(given)
+    result = polish_intrinsics(given, observed=observed)
     summary: dict[str, object] = {
         "used": False,
         "agreeing": None if result is None else int(result.agreeing.sum()),
         "constraints": constraints,
     }
-    why = rejected(result, focal_scale, fallback, agreeing)
+    why = rejected(result, scale, fallback, agreeing)
     if why or result is None:
         logger.info("camera %d: bundle adjustment of the triplets not kept: %s", camera_id, why)
         summary["rejected"] = why
         return Polished(estimate, fallback.relative_std, agreeing, summary, free_parameters)
     summary["used"] = True
-    relative_std = np.maximum(fallback.relative_std, result.std / focal_scale)
+    relative_std = np.maximum(fallback.relative_std, result.std / scale)
     _log_kept(camera_id, result)
     return Polished(
         result.intrinsics, relative_std, int(result.agreeing.sum()), summary, free_parameters
     )
 
 
-def release_principal_point(given: PolishInput) -> tuple[Polished | None, str | None]:
+def release_principal_point(
+    given: PolishInput, observed: list[Observed]
+) -> tuple[Polished | None, str | None]:
     """The polish with the principal point estimated where the constraint solve held
-    it (see the module), and None with why it stays held where it is not kept
-    (None, None where the solve held no principal point coordinate, or held the
-    focal length too)."""
+    it (:func:`held_principal_point`; see the module) and None, or None and why it
+    stays held. ``observed``: the tensors' tracks and projective costs."""
     fallback, start = given.fallback, given.start
-    solved = fallback.free_parameters
-    if (solved.cx and solved.cy) or solved.focal == "held":
-        return None, None
-    wider = FreeParameters(solved.focal, cx=True, cy=True)
-    result = polish_intrinsics(given, wider)
-    focal_scale = _focal_scale(start)
-    why = _not_determined(result, wider, focal_scale, fallback.tolerances, given.agreeing)
+    wider = FreeParameters(fallback.free_parameters.focal, cx=True, cy=True)
+    result = polish_intrinsics(given, wider, observed=observed)
+    scale = focal_scale(start)
+    why = _not_determined(result, wider, scale, fallback.tolerances, given.agreeing)
     if why or result is None:
-        logger.info(
-            "camera %d: the principal point stays held: the triplets' adjustment %s",
-            given.camera_id,
-            why,
-        )
+        why = why or "it failed"
+        logger.info("camera %d: the principal point stays held: %s", given.camera_id, why)
         return None, why
     # The solve's estimated parameters keep at least its std (as in the polish);
     # the principal point has the polish's own, not the held value's.
-    relative_std = result.std / focal_scale
+    relative_std = result.std / scale
     relative_std = np.where(
         _estimated(fallback), np.maximum(fallback.relative_std, relative_std), relative_std
     )
@@ -191,31 +199,36 @@ def release_principal_point(given: PolishInput) -> tuple[Polished | None, str | 
 def _not_determined(
     result: TripletBundleResult | None,
     free_parameters: FreeParameters,
-    focal_scale: np.ndarray,
+    scale: np.ndarray,
     tolerances: np.ndarray,
     agreeing: int,
 ) -> str | None:
-    """Why an adjustment of ``free_parameters`` does not determine them: it failed, fewer
-    triplets agree with it than with the constraints (``agreeing``), or the std of
-    its curvature exceeds ``FALLBACK_FACTOR`` tolerances for one of them; None when
-    it determines them."""
-    if result is None:
-        return "failed"
-    if int(result.agreeing.sum()) < agreeing:
-        agree = int(result.agreeing.sum())
-        return f"has {agree} triplets agree with it, {agreeing} the constraints"
+    """Why an adjustment of ``free_parameters`` does not determine them: it is not
+    supported (:func:`_unsupported`), or the std of its curvature exceeds
+    ``FALLBACK_FACTOR`` tolerances for one of them; None when it determines them.
+    ``scale``: :func:`focal_scale` of the start."""
+    why = _unsupported(result, agreeing)
+    if why or result is None:
+        return why
     estimated = _estimated_by(free_parameters)
-    ratios = (result.covariance_std / focal_scale / tolerances)[estimated]
+    ratios = (result.covariance_std / scale / tolerances)[estimated]
     if not np.all(np.isfinite(ratios)) or ratios.max() >= FALLBACK_FACTOR:
         ranked = np.where(np.isfinite(ratios), ratios, np.inf)
         worst = PARAMETER_NAMES[int(np.flatnonzero(estimated)[np.argmax(ranked)])]
-        return f"leaves {worst} beyond {FALLBACK_FACTOR:g} tolerances"
+        return f"it leaves {worst} beyond {FALLBACK_FACTOR:g} tolerances"
     return None
 
 
-def _focal_scale(start: np.ndarray) -> np.ndarray:
-    """(4,) what θ is relative to: (fx0, fy0, fx0, fy0), pixels."""
-    return np.array([start[0], start[1], start[0], start[1]], dtype=float)
+def _unsupported(result: TripletBundleResult | None, agreeing: int) -> str | None:
+    """Why an adjustment cannot replace the constraint estimate whatever its spread: it
+    failed, or fewer triplets agree with it than with the constraints (``agreeing``);
+    None otherwise."""
+    if result is None:
+        return "it failed"
+    kept = int(result.agreeing.sum())
+    if kept < agreeing:
+        return f"{kept} triplets agree with it, {agreeing} with the constraints"
+    return None
 
 
 def _log_kept(camera_id: int, result: TripletBundleResult) -> None:
@@ -291,12 +304,9 @@ def rejected(
     agreeing: int,
 ) -> str | None:
     """Why the polish is not kept (see the module), or None."""
-    if result is None:
-        return "it failed"
-    if int(result.agreeing.sum()) < agreeing:
-        return (
-            f"{int(result.agreeing.sum())} triplets agree with it, {agreeing} with the constraints"
-        )
+    why = _unsupported(result, agreeing)
+    if why or result is None:
+        return why
     if fallback.solution.jackknife is None or result.jackknife_std is None:
         return None
     polish_variance, constraint_variance = _variances(result.jackknife_std, focal_scale, fallback)

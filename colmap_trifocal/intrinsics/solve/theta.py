@@ -31,6 +31,13 @@ def theta_to_intrinsics(theta: np.ndarray, prior: np.ndarray) -> np.ndarray:
     )
 
 
+def focal_scale(intrinsics: np.ndarray) -> np.ndarray:
+    """(4,) what θ and relative std are relative to: (fx, fy, fx, fy) of ``intrinsics``
+    (fx, fy, cx, cy), pixels. A principal point coordinate is relative to the focal
+    length of its axis."""
+    return np.array([intrinsics[0], intrinsics[1], intrinsics[0], intrinsics[1]], dtype=float)
+
+
 def fold_focal_sign(intrinsics: np.ndarray) -> np.ndarray:
     """(fx, fy, cx, cy) with positive focal lengths (pixels).
 

@@ -19,7 +19,7 @@ import numpy as np
 from ..options import RESTART_THRESHOLD, CalibrationOptions
 from ..solve.fallback import FallbackSolution
 from ..solve.observability import FALLBACK_FACTOR, default_held_std
-from ..solve.theta import fold_focal_sign, theta_to_intrinsics, with_focal
+from ..solve.theta import focal_scale, fold_focal_sign, theta_to_intrinsics, with_focal
 from .focal_search import FocalSearchResult
 
 #: Other starts :func:`other_starts` offers at most (besides the first).
@@ -139,5 +139,4 @@ def restart_point(fallback: FallbackSolution, start: np.ndarray) -> np.ndarray:
 
 def moved_far(estimate: np.ndarray, start: np.ndarray) -> bool:
     """Whether any parameter moved more than ``RESTART_THRESHOLD`` of the focal length."""
-    focal = np.array([start[0], start[1], start[0], start[1]])
-    return bool(np.max(np.abs(estimate - start) / focal) > RESTART_THRESHOLD)
+    return bool(np.max(np.abs(estimate - start) / focal_scale(start)) > RESTART_THRESHOLD)
