@@ -49,6 +49,7 @@ from ..polish.shared_camera import (
     RawObservations,
     SharedCamera,
     agree_and_adjust,
+    cameras_at,
     shared_camera,
 )
 from ..solve.parametrization import FreeParameters
@@ -213,6 +214,15 @@ class DistortionInput:
 
 
 @dataclass(frozen=True)
+class _Fits:
+    """The triplets each model is fitted to: their tracks and projective costs, and
+    their calibrated cameras (None where not formed) at the stage's starting K."""
+
+    observed: list[Observed]
+    cameras: list[np.ndarray | None]
+
+
+@dataclass(frozen=True)
 class _Adjustment:
     """The lens stage's adjustment: the shared camera, its model, what it refines, the
     agreeing triplets and pycolmap's covariance."""
@@ -249,7 +259,8 @@ def estimate_distortion(lens: DistortionInput) -> LensDistortion | None:
         if screened is not None:
             return screened
     # Each tensor's tracks and projective cost, the same for every model fitted below.
-    fits = observed_tracks(lens.tensors, lens.tracks, lens.start, MAX_TRACKS, lens.workers)
+    observed = observed_tracks(lens.tensors, lens.tracks, lens.start, MAX_TRACKS, lens.workers)
+    fits = _Fits(observed, cameras_at(observed, lens.start, intrinsics, lens.workers))
     adjustment = _adjust(lens, fits, mask, intrinsics, setup.refined, camera_model)
     if adjustment is None:
         return None
@@ -262,7 +273,7 @@ def estimate_distortion(lens: DistortionInput) -> LensDistortion | None:
 
 def _with_richer_model(
     lens: DistortionInput,
-    fits: list[Observed],
+    fits: _Fits,
     mask: np.ndarray,
     intrinsics: np.ndarray,
     refined: Refined,
@@ -346,7 +357,7 @@ def _screened(
 
 def _adjust(
     lens: DistortionInput,
-    fits: list[Observed],
+    fits: _Fits,
     mask: np.ndarray,
     intrinsics: np.ndarray,
     refined: Refined,
@@ -357,10 +368,12 @@ def _adjust(
     camera, observed = lens.camera, lens.observed
     raw = None
     if observed is not None:
-        keypoints = [inlier_pixels(fit.tensor, observed.tracks, MAX_TRACKS) for fit in fits]
+        keypoints = [
+            inlier_pixels(fit.tensor, observed.tracks, MAX_TRACKS) for fit in fits.observed
+        ]
         raw = RawObservations(keypoints, observed.distortion)
     size = (camera.width, camera.height)
-    shared = shared_camera(fits, lens.start, intrinsics, camera_model, size, lens.workers, raw)
+    shared = shared_camera(fits.observed, fits.cameras, intrinsics, camera_model, size, raw)
     if shared is None:
         return None
     with_distortion = replace(refined, distortion=True)

@@ -71,7 +71,7 @@ from .calibrated_tracks import (
 )
 from .camera_setup import camera_start, refined_directions
 from .information import reduced_information
-from .shared_camera import agree_and_adjust, shared_camera
+from .shared_camera import agree_and_adjust, cameras_at, shared_camera
 
 
 @dataclass
@@ -137,13 +137,16 @@ def polish_intrinsics(
     free_parameters: FreeParameters | None = None,
     *,
     observed: list[Observed] | None = None,
+    cameras: dict[tuple[int, int, int], np.ndarray] | None = None,
 ) -> TripletBundleResult | None:
     """The ML intrinsics of the agreeing triplets (``λ < τ²``), from the constraint
     estimate (held values included); each tensor's ``inliers`` pick its tracks.
 
     ``free_parameters`` are those the adjustment estimates (default: the constraint
     solve's, ``given.fallback.free_parameters``); ``observed`` (the tensors' tracks and
-    projective costs, :func:`observed_tracks`) is computed where not given. Returns
+    projective costs, :func:`observed_tracks`) is computed where not given, and so are
+    the tensors' calibrated cameras at the estimate not in ``cameras`` (by the
+    tensor's images, :attr:`PredictedPolish.cameras`). Returns
     None when they are not expressible
     (:func:`intrinsics.polish.camera_setup.pycolmap_camera_setup`), no triplet agrees,
     or Ceres fails.
@@ -159,7 +162,8 @@ def polish_intrinsics(
     limit = tau**2
     if observed is None:
         observed = observed_tracks(tensors, tracks, start, workers=workers)
-    shared = shared_camera(observed, start, intrinsics, setup.model, given.size, workers)
+    formed = cameras_at(observed, start, intrinsics, workers, known=cameras)
+    shared = shared_camera(observed, formed, intrinsics, setup.model, given.size)
     if shared is None:
         return None
     agreement = agree_and_adjust(shared, limit, setup.refined)
@@ -202,10 +206,14 @@ class PredictedPolish:
         step: (4,) move of (fx, fy, cx, cy) from the constraint estimate, pixels.
         jackknife_std: (4,) its delete-a-group jackknife std, pixels (None: too few
             image groups).
+        cameras: each tensor's calibrated cameras (3, 3, 4) at the constraint
+            estimate, by the tensor's images (where they could be formed): the polish
+            starts from the same ones.
     """
 
     step: np.ndarray
     jackknife_std: np.ndarray | None
+    cameras: dict[tuple[int, int, int], np.ndarray]
 
 
 def predict_polish(
@@ -241,7 +249,8 @@ def predict_polish(
     jackknife_std = one_step_jackknife_std(
         intrinsics, information, gradients, free, [part.tensor.image_ids for part in parts]
     )
-    return PredictedPolish(moved - np.asarray(estimate, float), jackknife_std)
+    cameras = {part.tensor.image_ids: part.cameras for part in parts}
+    return PredictedPolish(moved - np.asarray(estimate, float), jackknife_std, cameras)
 
 
 @dataclass
@@ -250,6 +259,7 @@ class TripletInformation:
     calibrated cameras at K, its tracks triangulated, their Schur complement."""
 
     tensor: TripletTensor
+    cameras: np.ndarray  # (3, 3, 4) its calibrated cameras [R | t] at K
     information: np.ndarray  # (q, q) on (fx, fy, cx, cy[, k...])
     gradient: np.ndarray  # (q,)
     cost: float  # Σ r², px²
@@ -285,4 +295,4 @@ def _information_job(job: tuple[Any, ...]) -> TripletInformation | None:
     information, gradient, cost = reduced_information(intrinsics, cameras, points, pixels, radial)
     if not (np.all(np.isfinite(information)) and np.all(np.isfinite(gradient))):
         return None
-    return TripletInformation(tensor, information, gradient, cost, pixels.shape[1])
+    return TripletInformation(tensor, cameras, information, gradient, cost, pixels.shape[1])

@@ -269,26 +269,40 @@ class RawObservations:
     distortion: np.ndarray
 
 
-def shared_camera(
+def cameras_at(
     observed: list[Observed],
     start: np.ndarray,
     intrinsics: np.ndarray,
+    workers: int | None = None,
+    known: dict[tuple[int, int, int], np.ndarray] | None = None,
+) -> list[np.ndarray | None]:
+    """Each triplet's calibrated cameras (3, 3, 4) at K (:func:`calibrated_cameras`; None
+    where they cannot be formed), over ``workers`` threads (None: one per core).
+    ``known``: cameras already formed at K from the same tracks, by the tensor's images."""
+    known = known or {}
+    missing = [triplet for triplet in observed if triplet.tensor.image_ids not in known]
+    formed = map_jobs(_cameras_job, [(triplet, start, intrinsics) for triplet in missing], workers)
+    known = known | {t.tensor.image_ids: c for t, c in zip(missing, formed, strict=True)}
+    return [known[triplet.tensor.image_ids] for triplet in observed]
+
+
+def shared_camera(
+    observed: list[Observed],
+    cameras: list[np.ndarray | None],
+    intrinsics: np.ndarray,
     camera_model: str,
     size: tuple[int, int],
-    workers: int | None = None,
     raw: RawObservations | None = None,
 ) -> SharedCamera | None:
-    """Every triplet whose calibrated cameras can be formed at K, in one reconstruction
-    (the cameras over ``workers`` threads; None: one per core). With ``raw`` the
-    triplets are observed at its keypoints through a camera whose distortion starts at
-    its distortion (:meth:`SharedCamera.add`)."""
+    """Every triplet whose calibrated cameras at K (``cameras``, :func:`cameras_at`)
+    could be formed, in one reconstruction. With ``raw`` the triplets are observed at
+    its keypoints through a camera whose distortion starts at its distortion
+    (:meth:`SharedCamera.add`)."""
     shared = SharedCamera(intrinsics, camera_model, *size, None if raw is None else raw.distortion)
-    jobs = [(triplet, start, intrinsics) for triplet in observed]
     seen = raw.keypoints if raw is not None else [None] * len(observed)
-    cameras_of = map_jobs(_cameras_job, jobs, workers)
-    for triplet, cameras, at in zip(observed, cameras_of, seen, strict=True):
-        if cameras is not None and np.all(np.isfinite(cameras)):
-            shared.add(triplet, cameras, at)
+    for triplet, formed, at in zip(observed, cameras, seen, strict=True):
+        if formed is not None and np.all(np.isfinite(formed)):
+            shared.add(triplet, formed, at)
     return shared if shared.triplets else None
 
 

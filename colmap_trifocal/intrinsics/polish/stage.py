@@ -63,7 +63,13 @@ from ..solve.observability import FALLBACK_FACTOR
 from ..solve.parametrization import FreeParameters
 from ..solve.theta import focal_scale
 from ..solve.uncertainty import jackknife_covariance
-from .bundle import PolishInput, TripletBundleResult, polish_intrinsics, predict_polish
+from .bundle import (
+    PolishInput,
+    PredictedPolish,
+    TripletBundleResult,
+    polish_intrinsics,
+    predict_polish,
+)
 from .calibrated_tracks import Observed, observed_tracks
 from .camera_setup import pycolmap_camera_setup
 
@@ -140,12 +146,14 @@ def _polish_solved(given: PolishInput, observed: list[Observed] | None = None) -
         return unchanged
     scale = focal_scale(start)
     constraints = dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True))
-    skip = not_worth_it(tensors, tracks, start, estimate, fallback, scale, workers)
+    skip, predicted = not_worth_it(tensors, tracks, start, estimate, fallback, scale, workers)
     if skip:
         logger.info("camera %d: bundle adjustment of the triplets not run: %s", camera_id, skip)
         not_run = {"used": False, "agreeing": None, "constraints": constraints, "rejected": skip}
         return Polished(estimate, fallback.relative_std, agreeing, not_run, free_parameters)
-    result = polish_intrinsics(given, observed=observed)
+    result = polish_intrinsics(
+        given, observed=observed, cameras=None if predicted is None else predicted.cameras
+    )
     summary: dict[str, object] = {
         "used": False,
         "agreeing": None if result is None else int(result.agreeing.sum()),
@@ -249,13 +257,14 @@ def not_worth_it(
     fallback: FallbackSolution,
     focal_scale: np.ndarray,
     workers: int | None = None,
-) -> str | None:
-    """Why the polish cannot be kept, judged before it runs (see the module), or None."""
+) -> tuple[str | None, PredictedPolish | None]:
+    """Why the polish cannot be kept, judged before it runs (see the module), or None;
+    and the prediction it was judged by (None where it was not made)."""
     if fallback.solution.jackknife is None or not np.all(fallback.solution.inlier_tensors):
-        return None
+        return None, None
     predicted = predict_polish(tensors, tracks, start, estimate, fallback.free_parameters, workers)
     if predicted is None:
-        return None
+        return None, None
     if predicted.jackknife_std is not None:
         polish_variance, constraint_variance = _variances(
             predicted.jackknife_std, focal_scale, fallback
@@ -264,13 +273,14 @@ def not_worth_it(
             return (
                 f"its predicted jackknife spread ({np.sqrt(polish_variance):.2%}) exceeds "
                 f"the constraints' ({np.sqrt(constraint_variance):.2%})"
-            )
+            ), predicted
     estimated = _estimated(fallback)
     std = fallback.relative_std * focal_scale
     moves = np.abs(predicted.step[estimated]) / std[estimated]
     if moves.size and np.all(np.isfinite(moves)) and moves.max() <= MOVE_FRACTION:
-        return f"its predicted move ({moves.max():.2f} std at most) cannot change the estimate"
-    return None
+        why = f"its predicted move ({moves.max():.2f} std at most) cannot change the estimate"
+        return why, predicted
+    return None, predicted
 
 
 def _estimated(fallback: FallbackSolution) -> np.ndarray:
