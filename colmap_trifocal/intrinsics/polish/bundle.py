@@ -143,11 +143,11 @@ def polish_intrinsics(
     estimate (held values included); each tensor's ``inliers`` pick its tracks.
 
     ``free_parameters`` are those the adjustment estimates (default: the constraint
-    solve's, ``given.fallback.free_parameters``); ``observed`` (the tensors' tracks and
+    solve's, ``given.fallback.free_parameters``). ``observed`` (the tensors' tracks and
     projective costs, :func:`observed_tracks`) is computed where not given, and so are
-    the tensors' calibrated cameras at the estimate not in ``cameras`` (by the
-    tensor's images, :attr:`PredictedPolish.cameras`). Returns
-    None when they are not expressible
+    the calibrated cameras at the estimate of the tensors not in ``cameras`` (by the
+    tensor's images, :attr:`PredictedPolish.cameras`). Returns None when the free
+    parameters are not expressible
     (:func:`intrinsics.polish.camera_setup.pycolmap_camera_setup`), no triplet agrees,
     or Ceres fails.
     """

@@ -111,7 +111,7 @@ class Polished:
 
 def polish(given: PolishInput) -> Polished:
     """The polished estimate, or the constraint estimate with the reason it was kept."""
-    if not held_principal_point(given.fallback.free_parameters):
+    if not may_release_principal_point(given.fallback.free_parameters):
         return _polish_solved(given)
     # Both adjustments below start from the same tracks and projective costs.
     observed = observed_tracks(given.tensors, given.tracks, given.start, workers=given.workers)
@@ -124,7 +124,7 @@ def polish(given: PolishInput) -> Polished:
     return polished
 
 
-def held_principal_point(solved: FreeParameters) -> bool:
+def may_release_principal_point(solved: FreeParameters) -> bool:
     """Whether the constraint solve held a principal point coordinate and estimated the
     focal length: what :func:`release_principal_point` may estimate."""
     return not (solved.cx and solved.cy) and solved.focal != "held"
@@ -176,7 +176,7 @@ def release_principal_point(
     given: PolishInput, observed: list[Observed]
 ) -> tuple[Polished | None, str | None]:
     """The polish with the principal point estimated where the constraint solve held
-    it (:func:`held_principal_point`; see the module) and None, or None and why it
+    it (:func:`may_release_principal_point`; see the module) and None, or None and why it
     stays held. ``observed``: the tensors' tracks and projective costs."""
     fallback, start = given.fallback, given.start
     wider = FreeParameters(fallback.free_parameters.focal, cx=True, cy=True)
