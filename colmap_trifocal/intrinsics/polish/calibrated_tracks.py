@@ -24,15 +24,14 @@ from ...geometry.projective_ba import refined_cost
 from ...geometry.tensor_estimation import TripletTensor
 from ...geometry.trifocal import intrinsics_matrix
 
-#: Tracks per triplet at most (evenly spaced among its inliers) in the polish. Its cost
-#: is linear in them; beyond a few hundred per triplet (4–6 camera parameters from
-#: 20-odd triplets) more add nothing measurable on the real scenes, while at 300 the
-#: synthetic planar facade (1 px noise, 400–500 tracks per triplet) loses precision
-#: (docs/accuracy.md, eighteenth session).
-MAX_TRACKS = 400
+#: Tracks per triplet at most (evenly spaced among its inliers): as many as the
+#: tensor's own refinement uses (``TensorEstimationOptions.max_refined_tracks``). Fewer
+#: cost the polish its efficiency where noise is all there is: at 400, the synthetic
+#: three-view cube's error rose from the bundle-adjustment floor to 1.14 times it, and
+#: one of entry-P10's runs left its std (docs/accuracy.md, eighteenth session).
+MAX_TRACKS = 500
 #: The projective fit that λ is measured against starts at the tensor's cameras,
-#: already the ML fit of (a random 500 of) the tensor's inliers: a few iterations
-#: converge.
+#: already the ML fit of (up to 500 of) these tracks: a few iterations converge.
 PROJECTIVE_ITERATIONS = 20
 #: The projective refinement's relative cost decrease at which it stops.
 PROJECTIVE_TOLERANCE = 1e-9
