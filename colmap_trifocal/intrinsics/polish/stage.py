@@ -184,7 +184,6 @@ def release_principal_point(
     scale = focal_scale(start)
     why = _not_determined(result, wider, scale, fallback.tolerances, given.agreeing)
     if why or result is None:
-        why = why or "it failed"
         logger.info("camera %d: the principal point stays held: %s", given.camera_id, why)
         return None, why
     # The solve's estimated parameters keep at least its std (as in the polish);
@@ -255,7 +254,7 @@ def not_worth_it(
     start: np.ndarray,
     estimate: np.ndarray,
     fallback: FallbackSolution,
-    focal_scale: np.ndarray,
+    scale: np.ndarray,
     workers: int | None = None,
 ) -> tuple[str | None, PredictedPolish | None]:
     """Why the polish cannot be kept, judged before it runs (see the module), or None;
@@ -266,16 +265,14 @@ def not_worth_it(
     if predicted is None:
         return None, None
     if predicted.jackknife_std is not None:
-        polish_variance, constraint_variance = _variances(
-            predicted.jackknife_std, focal_scale, fallback
-        )
+        polish_variance, constraint_variance = _variances(predicted.jackknife_std, scale, fallback)
         if polish_variance > SKIP_RATIO * constraint_variance:
             return (
                 f"its predicted jackknife spread ({np.sqrt(polish_variance):.2%}) exceeds "
                 f"the constraints' ({np.sqrt(constraint_variance):.2%})"
             ), predicted
     estimated = _estimated(fallback)
-    std = fallback.relative_std * focal_scale
+    std = fallback.relative_std * scale
     moves = np.abs(predicted.step[estimated]) / std[estimated]
     if moves.size and np.all(np.isfinite(moves)) and moves.max() <= MOVE_FRACTION:
         why = f"its predicted move ({moves.max():.2f} std at most) cannot change the estimate"
@@ -294,7 +291,7 @@ def _estimated_by(free_parameters: FreeParameters) -> np.ndarray:
 
 
 def _variances(
-    polish_std: np.ndarray, focal_scale: np.ndarray, fallback: FallbackSolution
+    polish_std: np.ndarray, scale: np.ndarray, fallback: FallbackSolution
 ) -> tuple[float, float]:
     """Summed variances of the estimated parameters, relative to the focal length: the
     polish's (from its std in pixels) and the constraint solve's jackknife."""
@@ -302,14 +299,14 @@ def _variances(
     assert fallback.solution.jackknife is not None
     constraint = np.diag(jackknife_covariance(fallback.solution.jackknife))
     return (
-        float(np.sum((polish_std / focal_scale)[estimated] ** 2)),
+        float(np.sum((polish_std / scale)[estimated] ** 2)),
         float(np.sum(constraint[estimated])),
     )
 
 
 def rejected(
     result: TripletBundleResult | None,
-    focal_scale: np.ndarray,
+    scale: np.ndarray,
     fallback: FallbackSolution,
     agreeing: int,
 ) -> str | None:
@@ -319,7 +316,7 @@ def rejected(
         return why
     if fallback.solution.jackknife is None or result.jackknife_std is None:
         return None
-    polish_variance, constraint_variance = _variances(result.jackknife_std, focal_scale, fallback)
+    polish_variance, constraint_variance = _variances(result.jackknife_std, scale, fallback)
     limit = 1.0 if int(result.agreeing.sum()) > agreeing else VARIANCE_RATIO
     if polish_variance > limit * constraint_variance:
         return (
