@@ -298,7 +298,16 @@ def test_progress_bars_over_extraction_and_matching(
     images.mkdir()
     for k, view in enumerate(texture_views(7)):
         cv2.imwrite(str(images / f"{k}.png"), view)
-    options = {"camera_model": "SIMPLE_RADIAL", "camera_mode": mode, "matcher": matcher}
+    # One thread and a seeded RANSAC: the build is the same every time (views of one
+    # translated plane are degenerate for verification, where RANSAC over threads and
+    # unseeded found 55, 799 or 1232 inliers for one pair from run to run).
+    options = {
+        "camera_model": "SIMPLE_RADIAL",
+        "camera_mode": mode,
+        "matcher": matcher,
+        "num_threads": 1,
+        "seed": 0,
+    }
     plain = build_database(images, tmp_path / "plain.db", **options)
     capfd.readouterr()
     chunked = build_database(images, tmp_path / "chunked.db", **options, progress=True)
@@ -308,10 +317,6 @@ def test_progress_bars_over_extraction_and_matching(
     chunked_images, *chunked_matches = _by_name(chunked)
     plain_images, *plain_matches = _by_name(plain)
     assert chunked_images == plain_images
-    # The CPU matcher's nearest-neighbour search and verification's RANSAC both run over
-    # threads, so a pair's count can move by a match or two between any two runs.
-    for chunked_counts, plain_counts in zip(chunked_matches, plain_matches, strict=True):
-        assert chunked_counts.keys() == plain_counts.keys()
-        for pair, count in chunked_counts.items():
-            assert count == pytest.approx(plain_counts[pair], rel=0.01), pair
+    assert chunked_matches == plain_matches
+    assert all(chunked_matches[1].values())  # every pair verified, none empty
     assert sorted(p.name for p in tmp_path.iterdir()) == ["chunked.db", "images", "plain.db"]
