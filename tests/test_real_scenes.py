@@ -65,7 +65,6 @@ STATISTICAL = frozenset({"z", "coverage"})
 #: Checks a scene does not pass yet (issue 35): "start" (a run ends further from the
 #: truth than its start), "z" (an error beyond MAX_Z std), "coverage".
 KNOWN_FAILURES: dict[tuple[str, str], set[str]] = {
-    ("temple-ring", "default"): {"start"},
     ("kitti-seq2", "pinhole"): {"coverage"},
 }
 
