@@ -73,6 +73,20 @@ class SharedCamera:
         self.triplets: list[AdjustedTriplet] = []
 
     @property
+    def reconstruction(self) -> pycolmap.Reconstruction:
+        """The triplets' images and points and the camera. Assigning another (a copy
+        adjusted on the side) forgets the poses and points read from this one."""
+        return self._reconstruction
+
+    @reconstruction.setter
+    def reconstruction(self, value: pycolmap.Reconstruction) -> None:
+        self._reconstruction = value
+        # Each triplet's poses and points as last read (by its images), until a solve
+        # that adjusts it: pycolmap reads a point at a time, and λ, the cost and the
+        # information read every triplet again between solves.
+        self._read: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+    @property
     def camera(self) -> pycolmap.Camera:
         """The shared camera, as adjusted."""
         return self.reconstruction.cameras[CAMERA_ID]
@@ -194,6 +208,8 @@ class SharedCamera:
                 function_tolerance=function_tolerance,
                 max_iterations=max_iterations,
             )
+            for position in which:
+                self._read.pop(self.triplets[position].image_ids, None)
             return adjuster.solve()
 
     def adjust_each(self, which: list[int]) -> bool:
@@ -205,7 +221,11 @@ class SharedCamera:
         return any(usable)
 
     def poses_and_points(self, triplet: AdjustedTriplet) -> tuple[np.ndarray, np.ndarray]:
-        """A triplet's cameras (3, 3, 4) ``[R | t]`` and points (n, 3), as adjusted."""
+        """A triplet's cameras (3, 3, 4) ``[R | t]`` and points (n, 3), as adjusted
+        (read-only arrays)."""
+        read = self._read.get(triplet.image_ids)
+        if read is not None:
+            return read
         poses = np.stack(
             [
                 np.asarray(self.reconstruction.images[i].cam_from_world().matrix())
@@ -213,6 +233,9 @@ class SharedCamera:
             ]
         )
         points = np.array([self.reconstruction.points3D[int(p)].xyz for p in triplet.point_ids])
+        poses.setflags(write=False)
+        points.setflags(write=False)
+        self._read[triplet.image_ids] = poses, points
         return poses, points
 
     def information(self, which: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
