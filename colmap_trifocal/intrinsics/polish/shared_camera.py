@@ -167,6 +167,9 @@ class SharedCamera:
         config = pycolmap.BundleAdjustmentConfig()
         for position in which:
             triplet = self.triplets[position]
+            # The adjuster normalises the rotations as it sets the problem up (a change
+            # in the last digit), and its solve moves poses and points: read them again.
+            self._read.pop(triplet.image_ids, None)
             for image_id in triplet.image_ids:
                 config.add_image(image_id)
             first = self.reconstruction.images[triplet.image_ids[0]]
@@ -208,8 +211,6 @@ class SharedCamera:
                 function_tolerance=function_tolerance,
                 max_iterations=max_iterations,
             )
-            for position in which:
-                self._read.pop(self.triplets[position].image_ids, None)
             return adjuster.solve()
 
     def adjust_each(self, which: list[int]) -> bool:
