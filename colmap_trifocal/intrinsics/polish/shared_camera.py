@@ -81,9 +81,9 @@ class SharedCamera:
     @reconstruction.setter
     def reconstruction(self, value: pycolmap.Reconstruction) -> None:
         self._reconstruction = value
-        # Each triplet's poses and points as last read (by its images), until a solve
-        # that adjusts it: pycolmap reads a point at a time, and λ, the cost and the
-        # information read every triplet again between solves.
+        # Each triplet's poses and points as last read (by its images), until an
+        # adjuster is set up over it: pycolmap reads a point at a time, and λ, the cost
+        # and the information read every triplet again between solves.
         self._read: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = {}
 
     @property
