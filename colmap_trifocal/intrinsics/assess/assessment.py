@@ -173,27 +173,18 @@ def _reported(given: AssessInput) -> _Reported:
             reported_std[name] = float(candidate.held_std[index] * held_focal[index])
             estimate[index] = polished.intrinsics[index]
     pinhole = camera.model in PINHOLE_MODELS
-    rule: tuple[float, tuple[str, ...], str] | None = None
+    rule = None
     if given.warped or (pinhole and lens is not None and lens.present):
-        rule = (DECISIVE_Z, PARAMETER_NAMES, "the estimate through the lens")
+        rule = THROUGH_LENS
     elif source["cx"] == "prior" and source["cy"] == "prior":
-        rule = (HELD_CENTRE_Z, ("fx", "fy"), "the focal length at a held principal point")
+        rule = AT_HELD_CENTRE
     if rule is not None:
         estimate = estimate.copy()
         fitted_focal = float(np.sqrt(estimate[0] * estimate[1]))
         prior = np.asarray(given.data.prior, float)
         start_std = candidate.held_std * focal_scale(prior)
-        threshold, names, what = rule
         held = held_where_indecisive(
-            estimate,
-            reported_std,
-            source,
-            prior,
-            start_std,
-            tie_fy=camera.single_focal,
-            threshold=threshold,
-            names=names,
-            what=what,
+            estimate, reported_std, source, prior, start_std, rule, tie_fy=camera.single_focal
         )
         lens_note = _joined(lens_note, held)
         observable = {name: observable[name] and source[name] != "prior" for name in observable}
@@ -236,22 +227,33 @@ DECISIVE_Z = 3.0
 HELD_CENTRE_Z = 1.0
 
 
-def held_where_indecisive(  # noqa: PLR0913 (the rule's threshold, values and words, each a keyword)
+@dataclass(frozen=True)
+class HoldRule:
+    """Which estimated values stay at the start: those of ``names`` within ``z`` std of
+    it; ``what`` names the estimate in the note."""
+
+    z: float
+    names: tuple[str, ...]
+    what: str
+
+
+THROUGH_LENS = HoldRule(DECISIVE_Z, PARAMETER_NAMES, "the estimate through the lens")
+AT_HELD_CENTRE = HoldRule(HELD_CENTRE_Z, ("fx", "fy"), "the focal length at a held principal point")
+
+
+def held_where_indecisive(
     estimate: np.ndarray,
     std: dict[str, float | None],
     source: dict[str, str],
     start: np.ndarray,
     start_std: np.ndarray,
+    rule: HoldRule,
     *,
     tie_fy: bool = False,
-    threshold: float = DECISIVE_Z,
-    names: tuple[str, ...] = PARAMETER_NAMES,
-    what: str = "the estimate through the lens",
 ) -> str | None:
-    """Hold at the start (in place) each estimated value of ``names`` that is within
-    ``threshold`` std of the start. A tied fy (``tie_fy``: a single-focal model) follows
-    fx. ``start_std``: the start's std (4,), pixels. ``what`` names the estimate in the
-    note. Returns the note naming the held values (None: none held).
+    """Hold at the start (in place) each estimated value that ``rule`` holds. A tied fy
+    (``tie_fy``: a single-focal model) follows fx. ``start_std``: the start's std (4,),
+    pixels. Returns the note naming the held values (None: none held).
 
     Two estimates are held so:
 
@@ -278,10 +280,10 @@ def held_where_indecisive(  # noqa: PLR0913 (the rule's threshold, values and wo
     held = []
     for index, name in enumerate(PARAMETER_NAMES):
         value_std = std[name]
-        if name not in names or source[name] != "trifocal" or value_std is None:
+        if name not in rule.names or source[name] != "trifocal" or value_std is None:
             continue
         move = abs(float(estimate[index] - start[index]))
-        if move > threshold * value_std:
+        if move > rule.z * value_std:
             continue
         held.append(f"{name} {estimate[index]:.1f} ± {value_std:.1f}")
         followers = [index]
@@ -293,7 +295,7 @@ def held_where_indecisive(  # noqa: PLR0913 (the rule's threshold, values and wo
             source[PARAMETER_NAMES[follower]] = "prior"
     if not held:
         return None
-    return f"held at the start where {what} is within {threshold:g} std of it ({', '.join(held)})"
+    return f"held at the start where {rule.what} is within {rule.z:g} std of it ({', '.join(held)})"
 
 
 def parameter_sources(
