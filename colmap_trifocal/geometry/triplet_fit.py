@@ -38,6 +38,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from functools import cached_property
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -149,15 +150,17 @@ class TripletFit:
         threshold2: float,
         tolerance: float,
         iterations: int | None = None,
-    ) -> tuple[ProjectiveBAResult, np.ndarray, float] | None:
+        points: np.ndarray | None = None,
+    ) -> _Refinement | None:
         """Bundle adjustment and inlier re-selection from cameras P2, P3 (see the module steps).
 
         The tracks' one random order (``self.order``) serves every round (later rounds
-        refine mostly the same tracks, warm-started from their refined points). Returns the
-        last BA result, the inliers (n,) bool and the MSAC score over all tracks
-        (squared pixel errors truncated at ``threshold2``), or None when the BA fails
-        or too few tracks agree. ``tolerance`` and ``iterations`` (default
-        ``options.max_ba_iterations``) are the BA's stopping rule.
+        refine mostly the same tracks, warm-started from their refined points). Returns
+        the last BA result, the inliers, the MSAC score and where every track's point
+        would start another round (:class:`_Refinement`), or None when the BA fails or
+        too few tracks agree. ``tolerance`` and ``iterations`` (default
+        ``options.max_ba_iterations``) are the BA's stopping rule; ``points`` (n, 3)
+        the tracks' (u, v, ρ) to start from (default: in closed form at P2, P3).
         """
         x, pixel_scale, order, options = self.x, self.pixel_scale, self.order, self.options
         iterations = options.max_ba_iterations if iterations is None else iterations
@@ -167,7 +170,7 @@ class TripletFit:
         # so min_inliers is only checked after it; the BA needs a few tracks to start.
         if inliers.sum() < MIN_TRACKS_TO_REFINE:
             return None
-        points = initial_points(x, P2, P3)
+        points = initial_points(x, P2, P3) if points is None else points
         result: ProjectiveBAResult | None = None
         errors = np.zeros(n)
         for _ in range(options.refinement_rounds):
@@ -192,7 +195,7 @@ class TripletFit:
             if converged:
                 break
         assert result is not None
-        return result, inliers, float(np.minimum(errors, threshold2).sum())
+        return _Refinement(result, inliers, float(np.minimum(errors, threshold2).sum()), points)
 
     def _refined(
         self, starts: list[tuple[np.ndarray, np.ndarray]]
@@ -207,19 +210,33 @@ class TripletFit:
             # With little depth relief (a facade) the BA crawls along a flat valley
             # (relative decreases below 1e-4 long before the minimum), and each start
             # can end in its own local minimum: every start is refined on to
-            # convergence and the lowest MSAC score wins (docs/planar_and_sequences.md).
+            # convergence, from its points as refined so far, and the lowest MSAC
+            # score wins (docs/planar_and_sequences.md).
             candidates = [
                 self._refine(
-                    result.P2,
-                    result.P3,
+                    r.result.P2,
+                    r.result.P3,
                     threshold2,
                     options.final_ba_tolerance,
                     options.final_ba_iterations,
+                    r.points,
                 )
-                or (result, inliers, score)
-                for result, inliers, score in candidates
+                or r
+                for r in candidates
             ]
-        return candidates
+        return [(r.result, r.inliers, r.score) for r in candidates]
+
+
+class _Refinement(NamedTuple):
+    """A start refined (:meth:`TripletFit._refine`): the last BA result, the inliers (n,)
+    bool, the MSAC score over all tracks (squared pixel errors truncated at the
+    threshold, px²), and every track's (u, v, ρ) (n, 3) where another round would start
+    (the refined points where the BA used the track, in closed form elsewhere)."""
+
+    result: ProjectiveBAResult
+    inliers: np.ndarray
+    score: float
+    points: np.ndarray
 
 
 def fit_triplet(
