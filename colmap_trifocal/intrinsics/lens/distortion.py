@@ -85,7 +85,7 @@ MIN_TRIPLETS = 2
 #: once an iteration lowers the cost by a millionth (the cost is about σ² per residual
 #: degree of freedom, 10⁴–10⁵ of them, so a few hundredths of σ²). The agreeing
 #: triplets' adjustment after it, which the estimate is, goes on to the polish's
-#: tolerance. On EuRoC's crawling lens fit: 62–72 iterations to 20–26.
+#: tolerance (docs/accuracy.md, twentieth session).
 SCREENING_TOLERANCE = 1e-6
 #: The model a pinhole camera's distortion is looked for with (its own focal lengths).
 _DETECTION_MODELS = {"SIMPLE_PINHOLE": "SIMPLE_RADIAL", "PINHOLE": "OPENCV"}

@@ -35,11 +35,10 @@ GRADIENT_TOLERANCE = 1e-14
 
 
 MAX_ITERATIONS = 200
-#: Ceres' initial trust region radius (its default is 1e4). The solves here start next
-#: to their optimum (each triplet's calibrated fit, then the camera freed), where a
-#: Gauss–Newton step is right: at the default radius Levenberg–Marquardt's first steps
-#: are damped, and the facades' joint solve takes 9–10 iterations instead of 4 to the
-#: same optimum (docs/accuracy.md, twentieth session).
+#: Ceres' initial trust region radius (its default is 1e4): the solves here start next
+#: to their optimum (each triplet's calibrated fit, then the camera freed), where the
+#: Gauss–Newton step is right and Levenberg–Marquardt's damped first steps only delay
+#: it (docs/accuracy.md, twentieth session).
 INITIAL_TRUST_REGION_RADIUS = 1e8
 
 
