@@ -40,6 +40,11 @@ INITIAL_DAMPING = 1e-3
 #: (Mahalanobis, over cameras and points) of where it stops. On a near-planar triplet
 #: the relative cost decrease keeps above the tolerance for many more steps there.
 DECREMENT_STOP = 0.01
+#: The pixel noise σ (px) is at least this: the precision of a keypoint that COLMAP stores
+#: as float32, at a few thousand pixels. Exact tracks (a model's own projections) would
+#: otherwise give a σ of round-off (10⁻¹³ px), and a camera covariance by which the
+#: round-off in every tensor's constraints lies many σ out, so that no tensor agrees.
+MIN_SIGMA_PX = 1e-4
 
 
 @dataclass
@@ -51,7 +56,7 @@ class ProjectiveBAResult:
     points: np.ndarray  # (n, 3): u, v, ρ
     squared_errors: np.ndarray  # (n,) sum over the 3 views of squared pixel errors
     camera_covariance: np.ndarray  # (24, 24), in units of P entries², noise included
-    sigma: float  # estimated pixel noise (per coordinate), px
+    sigma: float  # estimated pixel noise (per coordinate), px, at least MIN_SIGMA_PX
     iterations: int
 
 
@@ -150,7 +155,7 @@ def refine_triplet(
     state, iteration, dof = _minimise(x, P2, P3, scale, points, max_iterations, tolerance)
     U, V, W, _, _, r = _linearise(x, state.P2, state.P3, state.points, scale)
     S = U - _contract_points(W @ point_block_inverses(V), W)
-    sigma2 = state.cost / dof
+    sigma2 = max(state.cost / dof, MIN_SIGMA_PX**2)
     return ProjectiveBAResult(
         P2=state.P2,
         P3=state.P3,
@@ -177,7 +182,7 @@ def refined_cost(
     scale = np.asarray(pixel_scale, dtype=float)
     state, _, dof = _minimise(x, P2, P3, scale, None, max_iterations, tolerance)
     r = _residuals(x, state.P2, state.P3, state.points, scale)
-    return np.einsum("nva,nva->n", r, r), float(np.sqrt(state.cost / dof))
+    return np.einsum("nva,nva->n", r, r), float(np.sqrt(max(state.cost / dof, MIN_SIGMA_PX**2)))
 
 
 def _minimise(
