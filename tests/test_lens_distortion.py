@@ -5,13 +5,16 @@ cannot hold it, and never ends further from the truth than its start."""
 
 from __future__ import annotations
 
+import re
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pycolmap
 import pytest
-from conftest import handheld_lens_contents, strecha_root
+from conftest import handheld_lens_contents, shared_dataset, strecha_root
+from real_scenes import SCENES_BY_NAME, prior_5
 
 from colmap_trifocal import CalibrationOptions, calibrate_contents, calibrate_database
 from colmap_trifocal.database.cameras import CameraInfo
@@ -343,6 +346,33 @@ def test_real_images_through_a_strong_lens_from_the_default_camera(tmp_path: Pat
         assert std is not None and error < 2.5 * std, (name, error, std)
         if name in ("cx", "cy") and result.observable[name]:
             assert error < 0.005 * truth[0], (name, error)
+
+
+@pytest.mark.real_data
+@pytest.mark.slow
+def test_a_value_held_on_the_lens_route_is_named_with_the_lens_estimates_std(
+    real_scene_database: Callable[[str, str], Path],
+) -> None:
+    """EuRoC's drone lens from a ±5 % prior (seed 3): the estimate through the lens (f 474
+    ± 30 px) is within 3 std of the prior, so f stays at the prior. The warning names f
+    with that estimate's std, which is what the images say of it; it named the std of
+    the warped tensors' constraints (5 px), which only chose the triplets, as if f were
+    undetermined at a 1 % std."""
+    truth = SCENES_BY_NAME["euroc-V1_01"].truth(shared_dataset(""))
+    prior = prior_5(truth, 3)
+    database = real_scene_database("euroc-V1_01", "default")
+    (result,) = calibrate_database(database, CalibrationOptions(prior=prior, seed=3))
+    # One focal length (SIMPLE_RADIAL): the prior's is the mean of its fx and fy.
+    assert result.source["fx"] == "prior"
+    assert result.fx == pytest.approx((prior[0] + prior[1]) / 2)
+    warning = result.warning()
+    assert warning is not None
+    judged = re.search(r"through the lens is within 3 std of it \(fx [\d.]+ ± ([\d.]+)", warning)
+    assert judged is not None, warning
+    lens_std = float(judged.group(1))
+    assert lens_std > 10.0  # pixels: 6 % of f, not the constraints' 1 %
+    assert result.unconstrained_std["fx"] == pytest.approx(lens_std, abs=0.05)
+    assert f"fx (std {lens_std:.0f} px)" in warning
 
 
 def test_distortion_at_a_held_focal_length_bends_the_pixels_as_the_fit_did() -> None:

@@ -71,7 +71,8 @@ class CameraCalibration:
     still estimated (weakly determined, std up to 3 tolerances), tied (``std`` None) or held
     at the best evidence, the start or a decisive focal search, with that evidence's std
     (``source``, ``assumptions``). ``unconstrained_std`` is each parameter's std when all of
-    the camera model's parameters are estimated (None where undetermined).
+    the camera model's parameters are estimated (None where undetermined); for a value the
+    lens route holds at the start, its estimate's through the lens.
     """
 
     camera_id: int

@@ -183,9 +183,11 @@ def _reported(given: AssessInput) -> _Reported:
         fitted_focal = float(np.sqrt(estimate[0] * estimate[1]))
         prior = np.asarray(given.data.prior, float)
         start_std = candidate.held_std * focal_scale(prior)
+        judged, sources = dict(reported_std), dict(source)
         held = held_where_indecisive(
             estimate, reported_std, source, prior, start_std, rule, tie_fy=camera.single_focal
         )
+        unconstrained = _held_through_lens(unconstrained, rule, judged, sources, source)
         lens_note = _joined(lens_note, held)
         observable = {name: observable[name] and source[name] != "prior" for name in observable}
         estimated = {name: estimated[name] and source[name] != "prior" for name in estimated}
@@ -210,6 +212,28 @@ def _reported(given: AssessInput) -> _Reported:
         lens=lens,
         lens_note=lens_note,
     )
+
+
+def _held_through_lens(
+    unconstrained: np.ndarray,
+    rule: HoldRule,
+    judged: dict[str, float | None],
+    before: dict[str, str],
+    after: dict[str, str],
+) -> np.ndarray:
+    """The unconstrained std (4,), pixels, with each value that ``rule`` held on the lens
+    route (its source ``before`` the hold an estimate, ``after`` it the start) at the std
+    of its estimate through the lens (``judged``; a tied fy: fx's). That estimate, every
+    parameter estimated, is what the images say of the value; the warped tensors'
+    constraints, whose std ``unconstrained`` holds, only chose its triplets."""
+    if rule is not THROUGH_LENS:
+        return unconstrained
+    out = unconstrained.copy()
+    for index, name in enumerate(PARAMETER_NAMES):
+        value_std = judged[name] if judged[name] is not None else judged["fx"]
+        if before[name] != "prior" and after[name] == "prior" and value_std is not None:
+            out[index] = value_std
+    return out
 
 
 #: How far a sensor's pixels are from square, relative (fy / fx − 1): what a single focal
