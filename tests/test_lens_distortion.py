@@ -356,7 +356,7 @@ def test_a_value_held_on_the_lens_route_is_named_with_the_lens_estimates_std(
     """EuRoC's drone lens from a ±5 % prior (seed 3): the estimate through the lens (f 474
     ± 30 px) is within 3 std of the prior, so f stays at the prior. The warning names f
     with that estimate's std, which is what the images say of it; it named the std of
-    the warped tensors' constraints (5 px), which only chose the triplets, as if f were
+    the warped tensors' constraints (6 px), which only chose the triplets, as if f were
     undetermined at a 1 % std."""
     truth = SCENES_BY_NAME["euroc-V1_01"].truth(shared_dataset(""))
     prior = prior_5(truth, 3)
