@@ -10,6 +10,7 @@ background job's SIGINT) stays ignored.
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -40,6 +41,31 @@ class InterruptWatch:
             self.signum = signum
         raise KeyboardInterrupt
 
+    def again(self, signum: int, frame: object) -> None:
+        """SIGALRM's handler: the signal received, delivered once more to whichever
+        handler it now has (this watch, or a block that holds signals back:
+        :func:`colmap_trifocal.common.errors.interrupts_deferred`)."""
+        if self.signum is not None:
+            signal.raise_signal(self.signum)
+
+    def unraisable(self, unraisable: Any, previous: Any) -> None:
+        """``sys.unraisablehook`` while the watch is installed.
+
+        Python runs a signal's handler between any two bytecodes, also inside a weakref
+        callback or a ``__del__``. A KeyboardInterrupt raised there cannot propagate:
+        Python prints it with its traceback and goes on, and the interrupt would be
+        lost. Instead nothing is printed, and the signal is delivered again a
+        millisecond later (SIGALRM, :meth:`again`), to whatever the main thread then
+        runs: once this hook has returned. Any other unraisable exception goes to
+        ``previous``.
+        """
+        if isinstance(unraisable.exc_value, KeyboardInterrupt) and self.received:
+            alarm = getattr(signal, "SIGALRM", None)  # not on Windows
+            if alarm is not None and signal.getsignal(alarm) == self.again:
+                signal.setitimer(signal.ITIMER_REAL, REARM_SECONDS)
+            return
+        previous(unraisable)
+
     def install(self) -> dict[int, Any]:
         """Install for every signal not ignored (``nohup``); the previous handlers."""
         return {
@@ -49,16 +75,30 @@ class InterruptWatch:
         }
 
 
+#: Delay (s) after which an interrupt that Python could not raise is raised again.
+REARM_SECONDS = 0.001
+
+
 @contextmanager
 def watching_signals() -> Iterator[InterruptWatch]:
-    """An :class:`InterruptWatch` installed for the block (main thread only), then the
-    previous handlers put back."""
+    """An :class:`InterruptWatch` installed for the block (main thread only), with its
+    ``sys.unraisablehook``; then the previous handlers and hook put back."""
     watch = InterruptWatch()
     in_main_thread = threading.current_thread() is threading.main_thread()
     previous = watch.install() if in_main_thread else {}
+    previous_hook = sys.unraisablehook
+    rearms = in_main_thread and hasattr(signal, "setitimer")  # not on Windows
+    previous_alarm = signal.signal(signal.SIGALRM, watch.again) if rearms else None
+    if in_main_thread:
+        sys.unraisablehook = lambda unraisable: watch.unraisable(unraisable, previous_hook)
     try:
         yield watch
     finally:
+        if in_main_thread:
+            sys.unraisablehook = previous_hook
+        if rearms:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, previous_alarm)
         for signum, handler in previous.items():
             signal.signal(signum, handler)
 
