@@ -183,11 +183,10 @@ def _reported(given: AssessInput) -> _Reported:
         fitted_focal = float(np.sqrt(estimate[0] * estimate[1]))
         prior = np.asarray(given.data.prior, float)
         start_std = candidate.held_std * focal_scale(prior)
-        judged, sources = dict(reported_std), dict(source)
-        held = held_where_indecisive(
+        held, judged = held_where_indecisive(
             estimate, reported_std, source, prior, start_std, rule, tie_fy=camera.single_focal
         )
-        unconstrained = _held_through_lens(unconstrained, rule, judged, sources, source)
+        unconstrained = _held_through_lens(unconstrained, rule, judged)
         lens_note = _joined(lens_note, held)
         observable = {name: observable[name] and source[name] != "prior" for name in observable}
         estimated = {name: estimated[name] and source[name] != "prior" for name in estimated}
@@ -215,24 +214,18 @@ def _reported(given: AssessInput) -> _Reported:
 
 
 def _held_through_lens(
-    unconstrained: np.ndarray,
-    rule: HoldRule,
-    judged: dict[str, float | None],
-    before: dict[str, str],
-    after: dict[str, str],
+    unconstrained: np.ndarray, rule: HoldRule, judged: dict[str, float]
 ) -> np.ndarray:
     """The unconstrained std (4,), pixels, with each value that ``rule`` held on the lens
-    route (its source ``before`` the hold an estimate, ``after`` it the start) at the std
-    of its estimate through the lens (``judged``; a tied fy: fx's). That estimate, every
-    parameter estimated, is what the images say of the value; the warped tensors'
-    constraints, whose std ``unconstrained`` holds, only chose its triplets."""
-    if rule is not THROUGH_LENS:
+    route at the std of its estimate through the lens (``judged``, by name, from
+    :func:`held_where_indecisive`). That estimate, every parameter estimated, is what the
+    images say of the value; the warped tensors' constraints, whose std ``unconstrained``
+    holds, only chose its triplets."""
+    if rule is not THROUGH_LENS or not judged:
         return unconstrained
     out = unconstrained.copy()
-    for index, name in enumerate(PARAMETER_NAMES):
-        value_std = judged[name] if judged[name] is not None else judged["fx"]
-        if before[name] != "prior" and after[name] == "prior" and value_std is not None:
-            out[index] = value_std
+    for name, value_std in judged.items():
+        out[PARAMETER_NAMES.index(name)] = value_std
     return out
 
 
@@ -274,10 +267,11 @@ def held_where_indecisive(
     rule: HoldRule,
     *,
     tie_fy: bool = False,
-) -> str | None:
+) -> tuple[str | None, dict[str, float]]:
     """Hold at the start (in place) each estimated value that ``rule`` holds. A tied fy
     (``tie_fy``: a single-focal model) follows fx. ``start_std``: the start's std (4,),
-    pixels. Returns the note naming the held values (None: none held).
+    pixels. Returns the note naming the held values (None: none held) and, by name, the
+    std of the estimate the rule judged for each value it held (a tied fy: fx's).
 
     Two estimates are held so:
 
@@ -302,6 +296,7 @@ def held_where_indecisive(
     """
     start = np.asarray(start, float)
     held = []
+    judged: dict[str, float] = {}
     for index, name in enumerate(PARAMETER_NAMES):
         value_std = std[name]
         if name not in rule.names or source[name] != "trifocal" or value_std is None:
@@ -314,12 +309,14 @@ def held_where_indecisive(
         if name == "fx" and (tie_fy or source["fy"] == "tied"):
             followers.append(1)
         for follower in followers:
+            judged[PARAMETER_NAMES[follower]] = value_std
             estimate[follower] = start[follower]
             std[PARAMETER_NAMES[follower]] = max(float(start_std[follower]), value_std + move / 2)
             source[PARAMETER_NAMES[follower]] = "prior"
     if not held:
-        return None
-    return f"held at the start where {rule.what} is within {rule.z:g} std of it ({', '.join(held)})"
+        return None, judged
+    note = f"held at the start where {rule.what} is within {rule.z:g} std of it ({', '.join(held)})"
+    return note, judged
 
 
 def parameter_sources(
