@@ -29,9 +29,6 @@ import numpy as np
 
 GAUGE_DIMENSION = 6
 _POINT_COLUMNS = [0, 1, 3]  # dX/d(u, v, ρ) picks these columns of P
-#: ``optimize=True``'s contraction path for two operands, given rather than searched
-#: on every call (the same BLAS contraction, without the search's cost).
-_PAIR_PATH = ["einsum_path", (0, 1)]
 #: The Levenberg–Marquardt damping λ of the first step (λ·I added to the normal
 #: equations, px² per normalised unit²: far below their curvature, a Gauss–Newton step).
 INITIAL_DAMPING = 1e-3
@@ -78,51 +75,101 @@ def initial_points(x: np.ndarray, P2: np.ndarray, P3: np.ndarray) -> np.ndarray:
     return np.column_stack([x[0], rho])
 
 
+def _projections(
+    points: np.ndarray, P2: np.ndarray, P3: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The points' homogeneous coordinates ``Xh = (u, v, 1, ρ)`` (4, n), from points in
+    columns (3, n), and their homogeneous images in views 2 and 3, ``Y[j] = P_(j+2) Xh``
+    (2, 3, n)."""
+    Xh = np.empty((4, points.shape[1]))
+    Xh[:2] = points[:2]
+    Xh[2] = 1.0
+    Xh[3] = points[2]
+    return Xh, (np.concatenate([P2, P3]) @ Xh).reshape(2, 3, -1)
+
+
 def _residuals(
     x: np.ndarray, P2: np.ndarray, P3: np.ndarray, points: np.ndarray, scale: np.ndarray
 ) -> np.ndarray:
-    """Pixel residuals (n, 3 views, 2)."""
-    Xh = np.column_stack([points[:, :2], np.ones(len(points)), points[:, 2]])
-    out = np.empty((len(points), 3, 2))
-    out[:, 0] = (points[:, :2] - x[0]) * scale
-    for view, P in ((1, P2), (2, P3)):
-        y = Xh @ P.T
-        out[:, view] = (y[:, :2] / y[:, 2:3] - x[view]) * scale
+    """Pixel residuals (3 views, 2, n) of the points in columns (3, n), for observations
+    in columns (3 views, 2, n)."""
+    return _residuals_at(x, points, _projections(points, P2, P3)[1], scale)
+
+
+def _residuals_at(
+    x: np.ndarray, points: np.ndarray, Y: np.ndarray, scale: np.ndarray
+) -> np.ndarray:
+    """:func:`_residuals`, given the points' images ``Y`` (2, 3, n) in views 2 and 3."""
+    out = np.empty((3, 2, points.shape[1]))
+    out[0] = points[:2] - x[0]
+    out[1:] = Y[:, :2] / Y[:, 2:] - x[1:]
+    out *= scale[:, None]
     return out
 
 
+class _Buffers:
+    """The large per-track arrays of one refinement, allocated once and written in place
+    at every iteration: fresh temporaries of a few hundred kB each are page-faulted in
+    anew by every allocation (glibc returns them to the system when freed), which took
+    more time than the arithmetic. ``camera_jacobian`` keeps its zero entries."""
+
+    def __init__(self, n: int) -> None:
+        self.camera_jacobian = np.zeros((2, 3, 4, 2, n))  # view, row r, column c of P, a, n
+        self.W = np.empty((2, 3, 4, 3, n))  # view, r, c, point parameter k, n
+        self.product = np.empty((24, 3, n))
+
+
 def _linearise(
-    x: np.ndarray, P2: np.ndarray, P3: np.ndarray, points: np.ndarray, scale: np.ndarray
+    x: np.ndarray,
+    P2: np.ndarray,
+    P3: np.ndarray,
+    points: np.ndarray,
+    scale: np.ndarray,
+    buffers: _Buffers,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Normal-equation blocks: U (24,24), V (n,3,3), W (n,24,3), g_c (24,), g_p (n,3), r."""
-    n = len(points)
-    r = _residuals(x, P2, P3, points, scale)
-    Xh = np.column_stack([points[:, :2], np.ones(n), points[:, 2]])
+    """Normal-equation blocks: U (24,24), V (3,3,n), W (24,3,n), g_c (24,), g_p (3,n), r.
+
+    Everything per track is laid out with the tracks last ("columns"), so that each
+    product below is one element-wise operation over n contiguous values: a track's
+    2x3 and 2x12 Jacobian blocks are far too small for matrix products to pay.
+    ``W[i, k, n] = Σ_a ∂r_na/∂c_i ∂r_na/∂X_nk``; r is (3 views, 2, n). W is a view
+    of ``buffers``, valid until the next linearisation.
+    """
+    n = points.shape[1]
+    Xh, Y = _projections(points, P2, P3)
+    r = _residuals_at(x, points, Y, scale)
+    inv_z = 1.0 / Y[:, 2]
+    image = Y[:, :2] * inv_z[:, None]  # (2 views, 2 a, n)
+    weight = scale[None, :, None] * inv_z[:, None]  # ∂(pixel a)/∂y_a = s_a / z
+    # ∂(pixel a)/∂X_k = w_a (P[a, k] − p_a P[2, k]) over the point columns k of P.
+    Pc = np.stack([P2[:, _POINT_COLUMNS], P3[:, _POINT_COLUMNS]])
+    J_pt = weight[:, :, None] * (Pc[:, :2, :, None] - image[:, :, None] * Pc[:, 2, None, :, None])
+    # ∂(pixel a)/∂P[r, c] = w_a Xh_c where r = a, −w_a p_a Xh_c where r = 2, else 0.
+    scaled = weight[:, :, None] * Xh  # (2, 2, 4, n)
+    J_cam = buffers.camera_jacobian
+    J_cam[:, 0, :, 0] = scaled[:, 0]
+    J_cam[:, 1, :, 1] = scaled[:, 1]
+    np.multiply(scaled[:, 0], -image[:, 0, None], out=J_cam[:, 2, :, 0])
+    np.multiply(scaled[:, 1], -image[:, 1, None], out=J_cam[:, 2, :, 1])
     U = np.zeros((24, 24))
-    W = np.zeros((n, 24, 3))
-    g_c = np.zeros(24)
-    J1 = np.zeros((2, 3))
-    J1[0, 0], J1[1, 1] = scale
-    V = np.broadcast_to(J1.T @ J1, (n, 3, 3)).copy()
-    g_p = -(r[:, 0] @ J1)
-    for view, P in ((1, P2), (2, P3)):
-        y = Xh @ P.T
-        inv_z = 1.0 / y[:, 2]
-        D = np.zeros((n, 2, 3))
-        D[:, 0, 0] = inv_z
-        D[:, 1, 1] = inv_z
-        D[:, :, 2] = -y[:, :2] * inv_z[:, None] ** 2
-        D *= scale[None, :, None]
-        J_cam = np.einsum("nar,nc->narc", D, Xh).reshape(n, 2, 12)
-        J_pt = D @ P[:, _POINT_COLUMNS]
-        block = slice(12 * (view - 1), 12 * view)
-        flat = J_cam.reshape(2 * n, 12)
-        U[block, block] = flat.T @ flat
-        W[:, block] = np.swapaxes(J_cam, 1, 2) @ J_pt
-        g_c[block] = -(flat.T @ r[:, view].reshape(2 * n))
-        V += np.swapaxes(J_pt, 1, 2) @ J_pt
-        g_p -= (np.swapaxes(J_pt, 1, 2) @ r[:, view, :, None])[..., 0]
-    return U, V, W, g_c, g_p, r
+    g_c = np.empty(24)
+    for view in range(2):
+        flat = J_cam[view].reshape(12, 2 * n)
+        block = slice(12 * view, 12 * view + 12)
+        U[block, block] = flat @ flat.T
+        g_c[block] = -(flat @ r[view + 1].reshape(2 * n))
+    # W by the rows r of P: pixel a alone at r = a; at r = 2, −p_a times those terms.
+    W = buffers.W
+    np.multiply(scaled[:, 0, :, None], J_pt[:, 0, None], out=W[:, 0])
+    np.multiply(scaled[:, 1, :, None], J_pt[:, 1, None], out=W[:, 1])
+    np.multiply(W[:, 0], -image[:, 0, None, None], out=W[:, 2])
+    W[:, 2] -= W[:, 1] * image[:, 1, None, None]
+    V = np.einsum("vajn,vakn->jkn", J_pt, J_pt)
+    V[0, 0] += scale[0] ** 2
+    V[1, 1] += scale[1] ** 2
+    g_p = -np.einsum("vakn,van->kn", J_pt, r[1:])
+    g_p[:2] -= r[0] * scale[:, None]
+    return U, V, W.reshape(24, 3, n), g_c, g_p, r
 
 
 def refine_triplet(
@@ -146,21 +193,23 @@ def refine_triplet(
         x: prior-normalised observations (3, n, 2) of n tracks in views 1, 2, 3.
         P2, P3: initial cameras (3, 4) in the same coordinates, ``P1 = [I|0]``.
         pixel_scale: (2,) pixels per normalised unit in x and y (fx0, fy0).
-        points: initial (u, v, ρ) per track; by default :func:`initial_points`.
+        points: initial (u, v, ρ) per track (n, 3); by default :func:`initial_points`.
         max_iterations: LM iterations at most.
         tolerance: stop when the relative cost decrease falls below this (or the
             Gauss–Newton step predicts less than ``DECREMENT_STOP`` σ²).
     """
     scale = np.asarray(pixel_scale, dtype=float)
-    state, iteration, dof = _minimise(x, P2, P3, scale, points, max_iterations, tolerance)
-    U, V, W, _, _, r = _linearise(x, state.P2, state.P3, state.points, scale)
-    S = U - _contract_points(W @ point_block_inverses(V), W)
+    columns = _columns(x)
+    state, iteration, dof = _minimise(columns, P2, P3, scale, points, max_iterations, tolerance)
+    U, V, W, _, _, r = _linearise(columns, state.P2, state.P3, state.points, scale, state.buffers)
+    V_inverse = np.ascontiguousarray(point_block_inverses(V.transpose(2, 0, 1)).transpose(1, 2, 0))
+    S = U - _schur_product(W, V_inverse, state.buffers)[0]
     sigma2 = max(state.cost / dof, MIN_SIGMA_PX**2)
     return ProjectiveBAResult(
         P2=state.P2,
         P3=state.P3,
-        points=state.points,
-        squared_errors=np.einsum("nva,nva->n", r, r),
+        points=np.ascontiguousarray(state.points.T),
+        squared_errors=np.einsum("van,van->n", r, r),
         camera_covariance=sigma2 * gauge_free_inverse(S),
         sigma=float(np.sqrt(sigma2)),
         iterations=iteration,
@@ -180,13 +229,19 @@ def refined_cost(
     linearisation and the Schur complement fewer): the cost of the projective fit that
     a calibrated fit of the same tracks is compared with."""
     scale = np.asarray(pixel_scale, dtype=float)
-    state, _, dof = _minimise(x, P2, P3, scale, None, max_iterations, tolerance)
-    r = _residuals(x, state.P2, state.P3, state.points, scale)
-    return np.einsum("nva,nva->n", r, r), float(np.sqrt(max(state.cost / dof, MIN_SIGMA_PX**2)))
+    columns = _columns(x)
+    state, _, dof = _minimise(columns, P2, P3, scale, None, max_iterations, tolerance)
+    r = _residuals(columns, state.P2, state.P3, state.points, scale)
+    return np.einsum("van,van->n", r, r), float(np.sqrt(max(state.cost / dof, MIN_SIGMA_PX**2)))
+
+
+def _columns(x: np.ndarray) -> np.ndarray:
+    """Observations (3 views, n, 2) laid out with the tracks last: (3 views, 2, n)."""
+    return np.ascontiguousarray(np.asarray(x, dtype=float).transpose(0, 2, 1))
 
 
 def _minimise(
-    x: np.ndarray,
+    columns: np.ndarray,
     P2: np.ndarray,
     P3: np.ndarray,
     scale: np.ndarray,
@@ -194,18 +249,20 @@ def _minimise(
     max_iterations: int,
     tolerance: float,
 ) -> tuple[_State, int, int]:
-    """The Levenberg–Marquardt iterations of :func:`refine_triplet`: where they end,
-    how many ran and the residuals' degrees of freedom."""
+    """The Levenberg–Marquardt iterations of :func:`refine_triplet`: where they end
+    (points in columns, (3, n)), how many ran and the residuals' degrees of freedom.
+    ``columns`` are the observations (3 views, 2, n), as :func:`_columns` lays them out."""
     P2 = P2 / np.linalg.norm(P2)
     P3 = P3 / np.linalg.norm(P3)
-    points = initial_points(x, P2, P3) if points is None else points.copy()
-    cost = float(np.sum(_residuals(x, P2, P3, points, scale) ** 2))
-    state = _State(P2, P3, points, cost)
+    start = initial_points(columns.transpose(0, 2, 1), P2, P3) if points is None else points
+    state_points = np.ascontiguousarray(start.T, dtype=float)
+    cost = float(np.sum(_residuals(columns, P2, P3, state_points, scale) ** 2))
+    state = _State(P2, P3, state_points, cost, _Buffers(state_points.shape[1]))
     iteration = 0
-    n = len(points)
+    n = state_points.shape[1]
     dof = max(6 * n - (3 * n + 24 - GAUGE_DIMENSION), 1)
     for iteration in range(1, max_iterations + 1):  # noqa: B007 - returned below
-        improved, relative_decrease, near_minimum = _iterate(state, x, scale, dof)
+        improved, relative_decrease, near_minimum = _iterate(state, columns, scale, dof)
         if not improved or relative_decrease < tolerance or near_minimum:
             break
     return state, iteration, dof
@@ -213,13 +270,15 @@ def _minimise(
 
 @dataclass
 class _State:
-    """Where the refinement is: the cameras (unit norm), the points, the cost (px²), and
-    Levenberg's damping λ with its growth factor after a rejected step."""
+    """Where the refinement is: the cameras (unit norm), the points in columns (3, n),
+    the cost (px²), and Levenberg's damping λ with its growth factor after a rejected
+    step."""
 
     P2: np.ndarray
     P3: np.ndarray
     points: np.ndarray
     cost: float
+    buffers: _Buffers
     damping: float = INITIAL_DAMPING
     growth: float = 2.0
 
@@ -227,8 +286,11 @@ class _State:
 def _iterate(state: _State, x: np.ndarray, scale: np.ndarray, dof: int) -> tuple[bool, float, bool]:
     """One Levenberg–Marquardt iteration on ``state``, in place: damped steps until one
     lowers the cost. Returns whether one did, its relative decrease, and whether the
-    optimum is near (the Gauss–Newton step predicts less than ``DECREMENT_STOP`` σ²)."""
-    system = _NormalEquations(*_linearise(x, state.P2, state.P3, state.points, scale)[:5])
+    optimum is near (the Gauss–Newton step predicts less than ``DECREMENT_STOP`` σ²).
+    ``x`` are the observations in columns (3 views, 2, n)."""
+    system = _NormalEquations(
+        *_linearise(x, state.P2, state.P3, state.points, scale, state.buffers)[:5], state.buffers
+    )
     while state.damping < 1e12:
         step = system.step(state.damping)
         if step is None:
@@ -263,34 +325,28 @@ def _iterate(state: _State, x: np.ndarray, scale: np.ndarray, dof: int) -> tuple
 
 @dataclass
 class _NormalEquations:
-    """The normal equations of one linearisation (:func:`_linearise`'s blocks), solved
-    for a damping λ by the Schur complement on the 3x3 point blocks."""
+    """The normal equations of one linearisation (:func:`_linearise`'s blocks, tracks
+    last), solved for a damping λ by the Schur complement on the 3x3 point blocks."""
 
     U: np.ndarray  # (24, 24)
-    V: np.ndarray  # (n, 3, 3)
-    W: np.ndarray  # (n, 24, 3)
+    V: np.ndarray  # (3, 3, n)
+    W: np.ndarray  # (24, 3, n)
     g_c: np.ndarray  # (24,)
-    g_p: np.ndarray  # (n, 3)
-
-    def __post_init__(self) -> None:
-        # W as (24, 3n): the point blocks side by side, so that the reduced camera
-        # matrix and the right-hand side are single matrix products.
-        self._W_flat = np.ascontiguousarray(self.W.transpose(1, 0, 2)).reshape(24, -1)
+    g_p: np.ndarray  # (3, n)
+    buffers: _Buffers  # where W and the step's products are written
 
     def step(self, damping: float) -> tuple[np.ndarray, np.ndarray, float] | None:
-        """(δ cameras (24,), δ points (n, 3), the cost decrease the step's quadratic
+        """(δ cameras (24,), δ points (3, n), the cost decrease the step's quadratic
         model predicts, gᵀδ + λ|δ|²) at damping λ; None where the system is not finite."""
-        W_flat = self._W_flat
-        V_inv = inverse_3x3(self.V + (damping + 1e-12) * np.eye(3))
-        WV = np.einsum(
-            "anj,njk->ank", W_flat.reshape(24, -1, 3), V_inv, optimize=_PAIR_PATH
-        ).reshape(24, -1)
-        S = self.U + damping * np.eye(24) - WV @ W_flat.T
+        V_inv = inverse_3x3_columns(self.V + (damping + 1e-12) * np.eye(3)[:, :, None])
+        reduced, WV = _schur_product(self.W, V_inv, self.buffers)
+        S = self.U + damping * np.eye(24) - reduced
         b = self.g_c - WV @ self.g_p.ravel()
         if not (np.all(np.isfinite(S)) and np.all(np.isfinite(b))):
             return None
         delta_c = np.linalg.lstsq(S, b, rcond=None)[0]
-        delta_p = (V_inv @ (self.g_p - (delta_c @ W_flat).reshape(-1, 3))[..., None])[..., 0]
+        rhs = self.g_p - (delta_c @ self.W.reshape(24, -1)).reshape(3, -1)
+        delta_p = V_inv[:, 0] * rhs[0] + V_inv[:, 1] * rhs[1] + V_inv[:, 2] * rhs[2]
         predicted = float(
             self.g_c @ delta_c
             + np.sum(self.g_p * delta_p)
@@ -299,9 +355,14 @@ class _NormalEquations:
         return delta_c, delta_p, predicted
 
 
-def _contract_points(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """Σ_n A_n B_nᵀ for stacks (n, 24, 3) (one BLAS call)."""
-    return np.asarray(A.transpose(1, 0, 2).reshape(24, -1) @ B.transpose(1, 0, 2).reshape(24, -1).T)
+def _schur_product(
+    W: np.ndarray, M: np.ndarray, buffers: _Buffers
+) -> tuple[np.ndarray, np.ndarray]:
+    """``Σ_n W_n M_n W_nᵀ`` (24, 24) for W (24, 3, n) and symmetric point blocks M
+    (3, 3, n), and ``W M`` flattened to (24, 3n), the factor of the right-hand side
+    (a view of ``buffers``)."""
+    WM_flat = np.einsum("ajn,jkn->akn", W, M, out=buffers.product).reshape(24, -1)
+    return WM_flat @ W.reshape(24, -1).T, WM_flat
 
 
 def inverse_3x3(M: np.ndarray) -> np.ndarray:
@@ -309,21 +370,27 @@ def inverse_3x3(M: np.ndarray) -> np.ndarray:
 
     Several times faster than ``np.linalg.inv`` on small blocks, and it never raises.
     """
+    return inverse_3x3_columns(M.transpose(1, 2, 0)).transpose(2, 0, 1)
+
+
+def inverse_3x3_columns(M: np.ndarray) -> np.ndarray:
+    """:func:`inverse_3x3` of matrices laid out with the stack last, (3, 3, n)."""
     adjugate, determinant = _adjugate_and_determinant(M)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.asarray(adjugate / determinant[:, None, None])
+        return np.asarray(adjugate / determinant)
 
 
 def _adjugate_and_determinant(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The adjugates (n, 3, 3) of a stack of 3x3 matrices and their determinants (n,)."""
-    a, b, c = M[:, 0, 0], M[:, 0, 1], M[:, 0, 2]
-    d, e, f = M[:, 1, 0], M[:, 1, 1], M[:, 1, 2]
-    g, h, i = M[:, 2, 0], M[:, 2, 1], M[:, 2, 2]
+    """The adjugates (3, 3, n) of 3x3 matrices stacked last (3, 3, n) and their
+    determinants (n,)."""
+    a, b, c = M[0, 0], M[0, 1], M[0, 2]
+    d, e, f = M[1, 0], M[1, 1], M[1, 2]
+    g, h, i = M[2, 0], M[2, 1], M[2, 2]
     out = np.empty_like(M)
-    out[:, 0, 0], out[:, 0, 1], out[:, 0, 2] = e * i - f * h, c * h - b * i, b * f - c * e
-    out[:, 1, 0], out[:, 1, 1], out[:, 1, 2] = f * g - d * i, a * i - c * g, c * d - a * f
-    out[:, 2, 0], out[:, 2, 1], out[:, 2, 2] = d * h - e * g, b * g - a * h, a * e - b * d
-    return out, a * out[:, 0, 0] + b * out[:, 1, 0] + c * out[:, 2, 0]
+    out[0, 0], out[0, 1], out[0, 2] = e * i - f * h, c * h - b * i, b * f - c * e
+    out[1, 0], out[1, 1], out[1, 2] = f * g - d * i, a * i - c * g, c * d - a * f
+    out[2, 0], out[2, 1], out[2, 2] = d * h - e * g, b * g - a * h, a * e - b * d
+    return out, a * out[0, 0] + b * out[1, 0] + c * out[2, 0]
 
 
 #: A point block whose determinant is below this fraction of its diagonal's product
@@ -341,9 +408,9 @@ def point_block_inverses(V: np.ndarray) -> np.ndarray:
     block is well conditioned, SVD (``np.linalg.pinv``) where not: the same
     pseudo-inverse to rounding, at a tenth of the cost of SVD for every block.
     """
-    adjugate, determinant = _adjugate_and_determinant(V)
+    adjugate, determinant = _adjugate_and_determinant(V.transpose(1, 2, 0))
     with np.errstate(divide="ignore", invalid="ignore"):
-        inverses = np.asarray(adjugate / determinant[:, None, None])
+        inverses = np.asarray(adjugate / determinant).transpose(2, 0, 1)
     diagonal = np.einsum("nii->ni", V).prod(axis=1)
     conditioned = (determinant > CONDITIONED_BLOCK * diagonal) & (diagonal > 0)
     conditioned &= np.isfinite(inverses).all(axis=(1, 2))
