@@ -114,32 +114,29 @@ def transfer_errors(
     error in views 2 and 3; the errors of views 2 and 3 are summed (pixels²).
     Leading dimensions of P2/P3 (hypotheses) broadcast against the tracks.
     """
-    n = x.shape[1]
-    p1 = np.concatenate([x[0], np.ones((n, 1))], axis=1)
-    projections = []
-    numerator = 0.0
-    denominator = 0.0
+    # Component by component over (…, n) arrays: the tracks' 3-vectors are far too
+    # short for products over a last axis of 3 to pay.
+    u1, v1 = x[0, :, 0], x[0, :, 1]
+    views = []
+    numerator: np.ndarray | float = 0.0
+    denominator: np.ndarray | float = 0.0
     for view, P in ((1, P2), (2, P3)):
-        c = p1 @ np.swapaxes(P[..., :, :3], -1, -2)  # A x1, (..., n, 3)
-        d = P[..., None, :, 3]  # a4, (..., 1, 3)
-        cx = _cross_with_point(x[view], c)
-        dx = _cross_with_point(x[view], d)
-        numerator = numerator + (cx * dx).sum(axis=-1)
-        denominator = denominator + (dx * dx).sum(axis=-1)
-        projections.append((c, d))
+        A = P[..., None]  # (…, 3, 4, 1): each entry against the n tracks
+        c = [A[..., k, 0, :] * u1 + A[..., k, 1, :] * v1 + A[..., k, 2, :] for k in range(3)]
+        d = [A[..., k, 3, :] for k in range(3)]  # a4
+        px, py = x[view, :, 0], x[view, :, 1]
+        # (x, y, 1) × c and (x, y, 1) × d
+        cx = (py * c[2] - c[1], c[0] - px * c[2], px * c[1] - py * c[0])
+        dx = (py * d[2] - d[1], d[0] - px * d[2], px * d[1] - py * d[0])
+        numerator = numerator + (cx[0] * dx[0] + cx[1] * dx[1] + cx[2] * dx[2])
+        denominator = denominator + (dx[0] * dx[0] + dx[1] * dx[1] + dx[2] * dx[2])
+        views.append((c, d, px, py))
     rho = -numerator / np.maximum(denominator, 1e-300)
-    errors = 0.0
-    for view, (c, d) in zip((1, 2), projections, strict=True):
-        y = c + rho[..., None] * d
+    errors: np.ndarray | float = 0.0
+    for c, d, px, py in views:
+        y = [c[k] + rho * d[k] for k in range(3)]
         with np.errstate(divide="ignore", invalid="ignore"):
-            du = (y[..., 0] / y[..., 2] - x[view][:, 0]) * pixel_scale[0]
-            dv = (y[..., 1] / y[..., 2] - x[view][:, 1]) * pixel_scale[1]
+            du = (y[0] / y[2] - px) * pixel_scale[0]
+            dv = (y[1] / y[2] - py) * pixel_scale[1]
         errors = errors + du * du + dv * dv
     return np.where(np.isfinite(errors), errors, np.inf)
-
-
-def _cross_with_point(point: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``(x, y, 1) × v`` for inhomogeneous points (n, 2) and vectors (..., n or 1, 3)."""
-    px, py = point[:, 0], point[:, 1]
-    v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]
-    return np.stack([py * v2 - v1, v0 - px * v2, px * v1 - py * v0], axis=-1)
