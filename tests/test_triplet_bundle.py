@@ -11,8 +11,13 @@ from colmap_trifocal import CalibrationOptions, calibrate_contents
 from colmap_trifocal.geometry.tensor_estimation import TripletTensor
 from colmap_trifocal.geometry.trifocal import normalize_tensor, tensor_from_cameras
 from colmap_trifocal.intrinsics.polish import calibrated_tracks
-from colmap_trifocal.intrinsics.polish.calibrated_tracks import calibrated_cameras, triangulate
-from colmap_trifocal.intrinsics.polish.camera_setup import pycolmap_camera_setup
+from colmap_trifocal.intrinsics.polish.calibrated_tracks import (
+    Observed,
+    calibrated_cameras,
+    triangulate,
+)
+from colmap_trifocal.intrinsics.polish.camera_setup import Refined, pycolmap_camera_setup
+from colmap_trifocal.intrinsics.polish.shared_camera import SharedCamera, agree_and_adjust
 from colmap_trifocal.intrinsics.solve.parametrization import FULL, SINGLE_FOCAL, FreeParameters
 from colmap_trifocal.synthetic.database import scene_contents
 from colmap_trifocal.synthetic.facade import facade_scene
@@ -164,3 +169,57 @@ def test_calibrated_cameras_voted_by_a_subset_are_those_every_track_votes(
     everything = calibrated_cameras(tensor, normalised, truth, K)
     assert subset is not None and everything is not None
     np.testing.assert_array_equal(subset, everything)
+
+
+class _CountingCamera(SharedCamera):
+    """A shared camera that records the triplets each of its solves adjusted."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.solved: list[list[int]] = []
+
+    def adjust(self, which: list[int], refined: Refined) -> bool:
+        self.solved.append(list(which))
+        return super().adjust(which, refined)
+
+
+def _jointly_adjusted_facade() -> tuple[_CountingCamera, np.ndarray]:
+    """Four triplets of a noisy facade in one shared camera started 3 % from the truth,
+    adjusted together with the camera free; and the truth (fx, fy, cx, cy)."""
+    scene = facade_scene(relief=0.3, seed=2, noise_px=0.5, num_points=1500)
+    truth = scene.intrinsics
+    start = truth * np.array([1.03, 1.03, 1.0, 1.0])
+    shared = _CountingCamera(start, "PINHOLE", scene.width, scene.height)
+    for index, views in enumerate([(0, 3, 6), (1, 4, 7), (2, 5, 8), (3, 6, 9)]):
+        seen = np.all(scene.visible[list(views)], axis=0) & ~scene.outliers
+        pixels = scene.observations[list(views)][:, seen]
+        n = pixels.shape[1]
+        tensor = _true_tensor(_relative_cameras(scene, views), seen, sigma_px=0.5)
+        observed = Observed(index, tensor, pixels, 0.25 * (3 * n - 18), 0.25)
+        cameras = calibrated_cameras(tensor, (pixels - start[2:]) / start[:2], truth, start)
+        assert cameras is not None
+        shared.add(observed, cameras)
+    everything = list(range(len(shared.triplets)))
+    assert shared.adjust(everything, Refined(focal=True, principal_point=True))
+    shared.solved.clear()
+    return shared, truth
+
+
+def test_triplets_adjusted_with_the_camera_are_not_adjusted_again_alone() -> None:
+    """After a joint adjustment every triplet is at its own optimum for that camera: the
+    rounds told so skip their solves one by one and reach the same camera and agreement."""
+    refined = Refined(focal=True, principal_point=True)
+    told, truth = _jointly_adjusted_facade()
+    fresh, _ = _jointly_adjusted_facade()
+    everything = list(range(len(told.triplets)))
+    limit = 1e6  # every triplet agrees
+    skipped = agree_and_adjust(told, limit, refined, adjusted=everything)
+    redone = agree_and_adjust(fresh, limit, refined)
+    assert skipped is not None and redone is not None
+    assert skipped.agreeing == redone.agreeing == everything
+    # The fresh rounds adjust each triplet alone first; the told ones go straight on.
+    assert fresh.solved[: len(everything)] == [[p] for p in everything]
+    assert all(len(which) > 1 for which in told.solved)
+    np.testing.assert_allclose(told.intrinsics(), fresh.intrinsics(), rtol=1e-7)
+    np.testing.assert_allclose(skipped.ratios, redone.ratios, atol=1e-3)
+    assert np.abs(told.intrinsics() / truth - 1).max() < 0.01

@@ -408,6 +408,8 @@ def _adjust(
             fallback=None
             if observed is None
             else (lambda: [p for p, t in enumerate(shared.triplets) if mask[t.index]]),
+            # Adjusted with the camera just now: each at its own optimum for that camera.
+            adjusted=() if observed is None else valid,
         )
         if agreement is None:
             return None

@@ -12,7 +12,7 @@ Pixels in COLMAP's convention (the centre of the top-left pixel at (0.5, 0.5)).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from typing import Any
 
@@ -367,11 +367,13 @@ def agree_and_adjust(
     refined: Refined,
     minimum: int = 1,
     fallback: Callable[[], list[int]] | None = None,
+    adjusted: Collection[int] = (),
 ) -> Agreement | None:
     """The rounds of the polish and the lens stage, ``ROUNDS`` at most.
 
     Each round: the triplets not adjusted with the current K get their poses and points
-    adjusted at it (the first round: all), which gives every triplet's λ at K; those
+    adjusted at it (the first round: all but ``adjusted``, those already adjusted
+    together with the camera as it is), which gives every triplet's λ at K; those
     with ``λ < limit`` are then adjusted together with the camera refined as
     ``refined``. A triplet adjusted with K free is already at its optimum for that K,
     and when the agreeing set does not change, neither does K: the rounds stop there.
@@ -381,8 +383,9 @@ def agree_and_adjust(
     """
     everything = range(len(shared.triplets))
     agreement = Agreement([], np.array([]))
+    current = set(adjusted)
     for _ in range(ROUNDS):
-        stale = [p for p in everything if p not in agreement.agreeing]
+        stale = [p for p in everything if p not in current]
         if stale and not shared.adjust_each(stale):
             return None
         ratios = shared.ratios()
@@ -395,6 +398,7 @@ def agree_and_adjust(
         if chosen == agreement.agreeing:
             return Agreement(chosen, ratios, used)
         agreement = Agreement(chosen, ratios, used)
+        current = set(chosen)
         if not shared.adjust(chosen, refined):
             return None
         if used:
