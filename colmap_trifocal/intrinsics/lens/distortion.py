@@ -384,6 +384,9 @@ def _adjust(
     if shared is None:
         return None
     with_distortion = replace(refined, distortion=True)
+    # Triplets the first joint adjustment fitted to convergence with the camera are each
+    # at their own optimum for it: the rounds do not adjust them again one by one.
+    adjusted: list[int] = []
     with keep_colmap_quiet():
         if observed is not None:
             # The start's distortion is the warp's nearest polynomial, not the
@@ -397,6 +400,8 @@ def _adjust(
             first = shared.solve(valid, with_distortion, function_tolerance=SCREENING_TOLERANCE)
             if not first.is_solution_usable():
                 return None
+            if first.termination_type == pycolmap.BundleAdjustmentTerminationType.CONVERGENCE:
+                adjusted = valid
         # No triplet fitting the model as well as a projective camera: the model cannot
         # hold this lens. The tensors that agreed on the warped tracks give its closest
         # camera, which sets the reported std (:func:`_fitted`).
@@ -408,8 +413,7 @@ def _adjust(
             fallback=None
             if observed is None
             else (lambda: [p for p, t in enumerate(shared.triplets) if mask[t.index]]),
-            # Adjusted with the camera just now: each at its own optimum for that camera.
-            adjusted=() if observed is None else valid,
+            adjusted=adjusted,
         )
         if agreement is None:
             return None
