@@ -223,3 +223,19 @@ def test_triplets_adjusted_with_the_camera_are_not_adjusted_again_alone() -> Non
     np.testing.assert_allclose(told.intrinsics(), fresh.intrinsics(), rtol=1e-7)
     np.testing.assert_allclose(skipped.ratios, redone.ratios, atol=1e-3)
     assert np.abs(told.intrinsics() / truth - 1).max() < 0.01
+
+
+def test_a_triplet_with_a_point_behind_its_cameras_is_not_adjusted_and_never_agrees() -> None:
+    """Its λ is inf from the start; the rounds adjust and choose from the others."""
+    shared, truth = _jointly_adjusted_facade()
+    behind = shared.triplets[1]
+    shared.reconstruction.points3D[int(behind.point_ids[0])].xyz = np.array([0.0, 0.0, -5.0])
+    shared.reconstruction = shared.reconstruction  # forget the poses and points read
+    assert not np.isfinite(shared.ratios()[1])
+    agreement = agree_and_adjust(shared, 1e6, Refined(focal=True, principal_point=True))
+    assert agreement is not None
+    assert [1] not in shared.solved
+    assert [[0], [2], [3]] == shared.solved[:3]
+    assert agreement.agreeing == [0, 2, 3]
+    assert not np.isfinite(agreement.ratios[1])
+    assert np.abs(shared.intrinsics() / truth - 1).max() < 0.01

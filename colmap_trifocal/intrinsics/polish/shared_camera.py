@@ -223,9 +223,15 @@ class SharedCamera:
         """Adjust the poses and points of each triplet of ``which`` at the camera as it
         is, one problem per triplet (they share nothing while the camera is held, and
         one triplet far from the camera would keep a joint problem iterating for all);
-        False when Ceres finds no usable solution for any of them."""
-        usable = [self.adjust([position], NOTHING) for position in which]
-        return any(usable)
+        False when Ceres finds no usable solution for any of them.
+
+        A triplet with a point behind one of its cameras is left as it is: its λ stays
+        inf (:meth:`ratios`). Adjusted from there, Ceres crawls for up to hundreds of
+        iterations into fits with points behind its cameras, and on the real scenes
+        no such triplet ever agreed (docs/accuracy.md, twenty-third session)."""
+        fitted = [p for p in which if np.isfinite(self.cost([p]))]
+        usable = [self.adjust([position], NOTHING) for position in fitted]
+        return not fitted or any(usable)
 
     def poses_and_points(self, triplet: AdjustedTriplet) -> tuple[np.ndarray, np.ndarray]:
         """A triplet's cameras (3, 3, 4) ``[R | t]`` and points (n, 3), as adjusted
