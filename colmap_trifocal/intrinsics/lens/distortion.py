@@ -392,8 +392,8 @@ def _adjust(
             # The start's distortion is the warp's nearest polynomial, not the
             # camera's: every triplet adjusted with it first, so that λ compares fits.
             # A triplet with a point behind its cameras has no calibrated fit to start
-            # from; in a joint problem it keeps Ceres iterating for all to its bound;
-            # the rounds below adjust it on its own.
+            # from; in a joint problem it keeps Ceres iterating for all to its bound.
+            # It stays out (its λ is inf: :meth:`SharedCamera.adjust_each`).
             valid = [p for p in range(len(shared.triplets)) if np.isfinite(shared.cost([p]))]
             if len(valid) < MIN_TRIPLETS:
                 return None
