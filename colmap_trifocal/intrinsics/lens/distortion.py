@@ -394,7 +394,7 @@ def _adjust(
             # A triplet with a point behind its cameras has no calibrated fit to start
             # from; in a joint problem it keeps Ceres iterating for all to its bound.
             # It stays out (its λ is inf: :meth:`SharedCamera.adjust_each`).
-            valid = [p for p in range(len(shared.triplets)) if np.isfinite(shared.cost([p]))]
+            valid = [p for p, triplet in enumerate(shared.triplets) if triplet.in_front]
             if len(valid) < MIN_TRIPLETS:
                 return None
             first = shared.solve(valid, with_distortion, function_tolerance=SCREENING_TOLERANCE)

@@ -52,6 +52,9 @@ class AdjustedTriplet:
     pixels: np.ndarray  # (3, n, 2) its tracks, pixels
     projective_cost: float  # C_proj, px²
     sigma2: float  # σ², px²
+    #: Every point, as triangulated when the triplet was added, in front of its three
+    #: cameras (where not, no adjustment of the triplet alone is run: :meth:`adjust_each`).
+    in_front: bool = True
 
 
 class SharedCamera:
@@ -150,6 +153,7 @@ class SharedCamera:
                 pixels,
                 observed.projective_cost,
                 observed.sigma2,
+                in_front=bool(np.all(_depths(cameras, points) > 0)),
             )
         )
 
@@ -225,11 +229,12 @@ class SharedCamera:
         one triplet far from the camera would keep a joint problem iterating for all);
         False when Ceres finds no usable solution for any of them.
 
-        A triplet with a point behind one of its cameras is left as it is: its λ stays
-        inf (:meth:`ratios`). Adjusted from there, Ceres crawls for up to hundreds of
+        A triplet added with a point behind one of its cameras
+        (:attr:`AdjustedTriplet.in_front`) is left as it is: its λ stays inf
+        (:meth:`ratios`). Adjusted from there, Ceres crawls for up to hundreds of
         iterations into fits with points behind its cameras, and on the real scenes
         no such triplet ever agreed (docs/accuracy.md, twenty-third session)."""
-        fitted = [p for p in which if np.isfinite(self.cost([p]))]
+        fitted = [p for p in which if self.triplets[p].in_front]
         usable = [self.adjust([position], NOTHING) for position in fitted]
         return not fitted or any(usable)
 
@@ -293,6 +298,11 @@ class SharedCamera:
                 for triplet in self.triplets
             ]
         )
+
+
+def _depths(cameras: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(3, n) depth of each point (n, 3) in each camera ``[R | t]`` (3, 3, 4)."""
+    return np.asarray(points @ cameras[:, 2, :3].T + cameras[:, 2, 3]).T
 
 
 @dataclass(frozen=True)
