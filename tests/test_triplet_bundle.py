@@ -178,9 +178,9 @@ class _CountingCamera(SharedCamera):
         super().__init__(*args, **kwargs)
         self.solved: list[list[int]] = []
 
-    def adjust(self, which: list[int], refined: Refined) -> bool:
+    def solve(self, which: list[int], refined: Refined, **kwargs):
         self.solved.append(list(which))
-        return super().adjust(which, refined)
+        return super().solve(which, refined, **kwargs)
 
 
 def _jointly_adjusted_facade(behind: int | None = None) -> tuple[_CountingCamera, np.ndarray]:
@@ -210,9 +210,11 @@ def _jointly_adjusted_facade(behind: int | None = None) -> tuple[_CountingCamera
     return shared, truth
 
 
-def test_triplets_adjusted_with_the_camera_are_not_adjusted_again_alone() -> None:
-    """After a joint adjustment every triplet is at its own optimum for that camera: the
-    rounds told so skip their solves one by one and reach the same camera and agreement."""
+def test_triplets_adjusted_with_the_camera_are_not_adjusted_again() -> None:
+    """After a joint adjustment every triplet is at its own optimum for that camera, and
+    the camera at its optimum for them: where they all agree, the rounds told so run no
+    solve at all (neither one by one nor together) and reach the same camera and
+    agreement as rounds that redo both."""
     refined = Refined(focal=True, principal_point=True)
     told, truth = _jointly_adjusted_facade()
     fresh, _ = _jointly_adjusted_facade()
@@ -222,9 +224,9 @@ def test_triplets_adjusted_with_the_camera_are_not_adjusted_again_alone() -> Non
     redone = agree_and_adjust(fresh, limit, refined)
     assert skipped is not None and redone is not None
     assert skipped.agreeing == redone.agreeing == everything
-    # The fresh rounds adjust each triplet alone first; the told ones go straight on.
-    assert fresh.solved[: len(everything)] == [[p] for p in everything]
-    assert all(len(which) > 1 for which in told.solved)
+    # The fresh rounds adjust each triplet alone, then all together; the told ones stop.
+    assert fresh.solved == [[p] for p in everything] + [everything]
+    assert told.solved == []
     np.testing.assert_allclose(told.intrinsics(), fresh.intrinsics(), rtol=1e-7)
     np.testing.assert_allclose(skipped.ratios, redone.ratios, atol=1e-3)
     assert np.abs(told.intrinsics() / truth - 1).max() < 0.01

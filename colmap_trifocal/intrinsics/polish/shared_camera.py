@@ -384,22 +384,26 @@ def agree_and_adjust(
     minimum: int = 1,
     fallback: Callable[[], list[int]] | None = None,
     adjusted: Collection[int] = (),
+    function_tolerance: float = FUNCTION_TOLERANCE,
 ) -> Agreement | None:
     """The rounds of the polish and the lens stage, ``ROUNDS`` at most.
 
     Each round: the triplets not adjusted with the current K get their poses and points
     adjusted at it (the first round: all but ``adjusted``, those already adjusted
-    together with the camera as it is), which gives every triplet's λ at K; those
-    with ``λ < limit`` are then adjusted together with the camera refined as
-    ``refined``. A triplet adjusted with K free is already at its optimum for that K,
-    and when the agreeing set does not change, neither does K: the rounds stop there.
+    together with the camera as it is, refined as ``refined``), which gives every
+    triplet's λ at K; those with ``λ < limit`` are then adjusted together with the
+    camera refined as ``refined``. A triplet adjusted with K free is already at its
+    optimum for that K, and when the agreeing set is the one K was last adjusted with
+    (in the first round: ``adjusted``), neither changes: the rounds stop there.
     Where fewer than ``minimum`` agree in the first round, ``fallback`` (if given)
-    chooses them instead, and the rounds end after their adjustment. None where Ceres
+    chooses them instead, and the rounds end after their adjustment. The adjustments
+    with the camera stop at Ceres' relative ``function_tolerance``. None where Ceres
     fails or fewer than ``minimum`` triplets remain.
     """
     everything = range(len(shared.triplets))
     agreement = Agreement([], np.array([]))
     current = set(adjusted)
+    settled = sorted(adjusted)  # the triplets K was last adjusted with
     for _ in range(ROUNDS):
         stale = [p for p in everything if p not in current]
         if stale and not shared.adjust_each(stale):
@@ -411,11 +415,13 @@ def agree_and_adjust(
             used, chosen = True, fallback()
         if len(chosen) < minimum:
             return None
-        if chosen == agreement.agreeing:
+        if chosen == settled:
             return Agreement(chosen, ratios, used)
         agreement = Agreement(chosen, ratios, used)
         current = set(chosen)
-        if not shared.adjust(chosen, refined):
+        settled = chosen
+        summary = shared.solve(chosen, refined, function_tolerance=function_tolerance)
+        if not summary.is_solution_usable():
             return None
         if used:
             break
