@@ -80,13 +80,6 @@ DECISIVE = 100.0
 SCREEN_FACTOR = 0.5
 #: Triplets that must agree before the distortion is estimated at all.
 MIN_TRIPLETS = 2
-#: Ceres' relative function tolerance of the lens stage's adjustments: they stop once an
-#: iteration lowers the cost by a millionth (the cost is about σ² per residual degree of
-#: freedom, 10⁴–10⁵ of them, so a few hundredths of σ²). A one-term model of a lens with
-#: k2 leaves large residuals, and Gauss–Newton then crawls on: EuRoC's 12 agreeing
-#: triplets took 56 iterations to 10⁻¹², and f was within 0.03 std of its end after
-#: 20 (docs/accuracy.md, twentieth and twenty-fourth sessions).
-LENS_TOLERANCE = 1e-6
 #: The model a pinhole camera's distortion is looked for with (its own focal lengths).
 _DETECTION_MODELS = {"SIMPLE_PINHOLE": "SIMPLE_RADIAL", "PINHOLE": "OPENCV"}
 #: A stored model and the next one with one more radial term, fitted where the stored
@@ -398,7 +391,7 @@ def _adjust(
             valid = [p for p, triplet in enumerate(shared.triplets) if triplet.in_front]
             if len(valid) < MIN_TRIPLETS:
                 return None
-            first = shared.solve(valid, with_distortion, function_tolerance=LENS_TOLERANCE)
+            first = shared.solve(valid, with_distortion)
             if not first.is_solution_usable():
                 return None
             if first.termination_type == pycolmap.BundleAdjustmentTerminationType.CONVERGENCE:
@@ -415,7 +408,6 @@ def _adjust(
             if observed is None
             else (lambda: [p for p, t in enumerate(shared.triplets) if mask[t.index]]),
             adjusted=adjusted,
-            function_tolerance=LENS_TOLERANCE,
         )
         if agreement is None:
             return None
