@@ -406,10 +406,9 @@ def agree_and_adjust(
     """
     everything = range(len(shared.triplets))
     agreement = Agreement([], np.array([]))
-    current = set(adjusted)
     settled = sorted(adjusted)  # the triplets K was last adjusted with
     for _ in range(ROUNDS):
-        stale = [p for p in everything if p not in current]
+        stale = [p for p in everything if p not in settled]
         if stale and not shared.adjust_each(stale):
             return None
         ratios = shared.ratios()
@@ -422,7 +421,6 @@ def agree_and_adjust(
         if chosen == settled:
             return Agreement(chosen, ratios, used)
         agreement = Agreement(chosen, ratios, used)
-        current = set(chosen)
         settled = chosen
         if not shared.adjust(chosen, refined):
             return None
