@@ -44,6 +44,7 @@ import cv2
 import numpy as np
 
 from ..common.log import logger
+from .motion import recover_pose
 from .planarity import DominantPlane, dominant_plane, plane_parallax_cameras
 from .projective_ba import ProjectiveBAResult, initial_points, refine_triplet
 from .tensor_estimation import BA_TOLERANCE, TensorEstimationOptions, TripletTensor, transfer_errors
@@ -340,7 +341,7 @@ def calibrated_hypothesis(
 
     Views 1-2: essential matrix (OpenCV's USAC with the 5-point solver: a tenth of the
     cost of its plain RANSAC at the same iteration bound, with as many inliers or more)
-    and the cheirality check;
+    and the cheirality check (:func:`.motion.recover_pose`);
     view 3: PnP RANSAC on the tracks triangulated from views 1-2 (AP3P's minimal
     four-point samples, a third of SQPnP's cost per iteration), then SQPnP on its
     inliers.
@@ -362,9 +363,8 @@ def calibrated_hypothesis(
     )
     if E is None or E.shape != (3, 3):
         return None
-    _, R2, t2, pose_mask = cv2.recoverPose(E, x1, x2, identity, mask=mask.copy())
-    P2 = np.hstack([R2, t2])
-    good = pose_mask.ravel() > 0
+    _, R2, t2, good = recover_pose(E, x1, x2, mask)
+    P2 = np.hstack([R2, t2[:, None]])
     if good.sum() < 6:
         return None
     X = cv2.triangulatePoints(np.eye(3, 4), P2, x1[good].T, x2[good].T)

@@ -12,7 +12,7 @@ this module says *why*, from the triplets' tracks measured with the estimate K
   at least ``PLANAR_FRACTION`` of the tracks between the views of most triplets
   (a facade, or too little translation to see depth);
 * **pure translation / forward motion**: the relative rotations (essential matrix,
-  OpenCV 5-point RANSAC and ``recoverPose``) are mostly (75th percentile) below
+  OpenCV 5-point RANSAC and its cheirality) are mostly (75th percentile) below
   ``MIN_ROTATION_DEG``;
   forward when the translation is mostly along the optical axis;
 * **rotation about one axis**: at least ``ONE_AXIS_FRACTION`` of the squared

@@ -12,9 +12,9 @@ What. For each tensor (cameras ``P2``, ``P3`` of its ML projective fit) and a
 camera K:
 
 * **Calibrated cameras**: the essential matrices ``E = [a]ₓ A`` of
-  ``K⁻¹ K0 [A | a]`` (view 1 is ``[I | 0]``), decomposed with OpenCV
-  (:func:`cv2.recoverPose`, cheirality on the tracks); view 3's baseline scale by
-  linear least squares on the tracks triangulated from views 1–2.
+  ``K⁻¹ K0 [A | a]`` (view 1 is ``[I | 0]``), decomposed by cheirality on the tracks
+  (:func:`geometry.motion.recover_pose`); view 3's baseline scale by linear least
+  squares on the tracks triangulated from views 1–2.
 * **Likelihood ratio** ``λ = (C_cal − C_proj) / σ²``: ``C_cal`` is the squared
   reprojection error (px²) of the triplet's inlier tracks after a bundle adjustment
   of the three calibrated poses and the points with K fixed (pycolmap),

@@ -2,8 +2,8 @@
 
 For a tensor (cameras ``P2``, ``P3`` of its ML projective fit, in coordinates
 normalised by the start K0) and a camera K: the essential matrices ``E = [a]ₓ A`` of
-``K⁻¹ K0 [A | a]`` (view 1 is ``[I | 0]``), decomposed with OpenCV
-(:func:`cv2.recoverPose`, cheirality on up to ``CHEIRALITY_TRACKS`` of the tracks),
+``K⁻¹ K0 [A | a]`` (view 1 is ``[I | 0]``), decomposed by cheirality
+(:func:`geometry.motion.recover_pose`, on up to ``CHEIRALITY_TRACKS`` of the tracks),
 view 3's baseline scale by linear least squares on the tracks triangulated from views
 1–2, and the tracks triangulated from all three views. The projective fit's own cost
 is the reference the calibrated fit's likelihood ratio is measured against. Pixels in
@@ -20,6 +20,7 @@ import numpy as np
 
 from ...common.parallel import map_jobs
 from ...common.sampling import evenly_spaced
+from ...geometry.motion import recover_pose
 from ...geometry.projective_ba import refined_cost
 from ...geometry.tensor_estimation import TripletTensor
 from ...geometry.trifocal import intrinsics_matrix
@@ -40,7 +41,7 @@ PROJECTIVE_PARAMETERS = 18
 #: Tracks (evenly spaced) whose cheirality chooses among an essential matrix's four
 #: decompositions: where the chosen one has at least ``DECISIVE_SHARE`` of them in front
 #: of both cameras (the others then have few), a hundred choose as all 500 would, at a
-#: fifth of OpenCV's cost; a vote less clear (a K far off, a lens's bent tracks) is
+#: fifth of the cost; a vote less clear (a K far off, a lens's bent tracks) is
 #: taken again on every track.
 CHEIRALITY_TRACKS = 100
 DECISIVE_SHARE = 0.9
@@ -68,14 +69,14 @@ def calibrated_cameras(
         essential = np.cross(a, A, axisa=0, axisb=0, axisc=0)  # [a]ₓ A
         essential = essential / np.linalg.norm(essential)
         try:
-            count, R, t, _ = cv2.recoverPose(essential, voters[0], voters[view], np.eye(3))
+            count, R, t, _ = recover_pose(essential, voters[0], voters[view])
             if count < DECISIVE_SHARE * voters.shape[1] and voters.shape[1] < x.shape[1]:
-                count, R, t, _ = cv2.recoverPose(essential, x[0], x[view], np.eye(3))
+                count, R, t, _ = recover_pose(essential, x[0], x[view])
         except cv2.error:
             return None
         if count == 0:
             return None
-        poses.append((R, t.ravel()))
+        poses.append((R, t))
     (R2, t2), (R3, t3) = poses
     cameras = np.stack([np.eye(3, 4), np.hstack([R2, t2[:, None]]), np.eye(3, 4)])
     points = triangulate(cameras[:2], x[:2])
