@@ -244,3 +244,24 @@ def test_a_triplet_with_a_point_behind_its_cameras_is_not_adjusted_and_never_agr
     assert agreement.agreeing == [0, 2, 3]
     assert not np.isfinite(agreement.ratios[1])
     assert np.abs(shared.intrinsics() / truth - 1).max() < 0.01
+
+
+def test_a_triplet_carried_behind_its_cameras_is_marked_and_left_out() -> None:
+    """A triplet whose points an adjustment carried behind its cameras leaves the
+    adjusted set: it is marked as such, its λ is inf, and the rounds neither adjust it
+    alone nor choose it."""
+    shared, truth = _jointly_adjusted_facade()
+    everything = list(range(len(shared.triplets)))
+    assert shared.still_in_front(everything) == everything
+    moved = shared.triplets[2]
+    for point_id in moved.point_ids[:5]:  # five points mirrored through the first camera
+        point = shared.reconstruction.points3D[int(point_id)]
+        point.xyz = -point.xyz
+    shared.reconstruction = shared.reconstruction  # forget the points as read
+    assert shared.still_in_front(everything) == [0, 1, 3]
+    assert not moved.in_front and all(shared.triplets[p].in_front for p in (0, 1, 3))
+    assert not np.isfinite(shared.ratios()[2])
+    agreement = agree_and_adjust(shared, 1e6, Refined(focal=True, principal_point=True))
+    assert agreement is not None and agreement.agreeing == [0, 1, 3]
+    assert [2] not in shared.solved
+    assert np.abs(shared.intrinsics() / truth - 1).max() < 0.01

@@ -58,8 +58,9 @@ class AdjustedTriplet:
     pixels: np.ndarray  # (3, n, 2) its tracks, pixels
     projective_cost: float  # C_proj, px²
     sigma2: float  # σ², px²
-    #: Every point, as triangulated when the triplet was added, in front of its three
-    #: cameras (where not, no adjustment of the triplet alone is run: :meth:`adjust_each`).
+    #: Every point, as triangulated when the triplet was added (or as last checked,
+    #: :meth:`SharedCamera.still_in_front`), in front of its three cameras (where not,
+    #: no adjustment of the triplet alone is run: :meth:`SharedCamera.adjust_each`).
     in_front: bool = True
 
 
@@ -235,14 +236,27 @@ class SharedCamera:
         one triplet far from the camera would keep a joint problem iterating for all);
         False when Ceres finds no usable solution for any of them.
 
-        A triplet added with a point behind one of its cameras
-        (:attr:`AdjustedTriplet.in_front`) is left as it is: its λ stays inf
+        A triplet added with a point behind one of its cameras, or found so after an
+        adjustment (:attr:`AdjustedTriplet.in_front`), is left as it is: its λ stays inf
         (:meth:`ratios`). Adjusted from there, Ceres crawls for up to hundreds of
         iterations into fits with points behind its cameras, and on the real scenes
         no such triplet ever agreed (docs/accuracy.md, twenty-third session)."""
         fitted = [p for p in which if self.triplets[p].in_front]
         usable = [self.adjust([position], NOTHING) for position in fitted]
         return not fitted or any(usable)
+
+    def still_in_front(self, which: list[int]) -> list[int]:
+        """The triplets of ``which`` whose points all lie in front of their cameras as
+        adjusted; the others are marked as not (:attr:`AdjustedTriplet.in_front`: they
+        are not adjusted alone again, and their λ is inf)."""
+        kept = []
+        for position in which:
+            triplet = self.triplets[position]
+            poses, points = self.poses_and_points(triplet)
+            triplet.in_front = bool(np.all(_depths(poses, points) > 0))
+            if triplet.in_front:
+                kept.append(position)
+        return kept
 
     def poses_and_points(self, triplet: AdjustedTriplet) -> tuple[np.ndarray, np.ndarray]:
         """A triplet's cameras (3, 3, 4) ``[R | t]`` and points (n, 3), as adjusted
