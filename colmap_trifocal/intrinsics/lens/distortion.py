@@ -399,8 +399,9 @@ def _adjust(
                 return None
             first = shared.solve(valid, with_distortion, max_iterations=FIRST_CHECK_ITERATIONS)
             if first.termination_type == pycolmap.BundleAdjustmentTerminationType.NO_CONVERGENCE:
-                # One whose points the adjustment carried behind its cameras does the
-                # same from there: it leaves, and the others' adjustment goes on.
+                # A triplet whose points it carried behind their cameras keeps it
+                # crawling: such triplets leave (marked, their λ inf), and the others'
+                # adjustment goes on from where it is.
                 valid = shared.still_in_front(valid)
                 if len(valid) < MIN_TRIPLETS:
                     return None

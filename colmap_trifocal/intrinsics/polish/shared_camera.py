@@ -160,7 +160,7 @@ class SharedCamera:
                 pixels,
                 observed.projective_cost,
                 observed.sigma2,
-                in_front=bool(np.all(_depths(cameras, points) > 0)),
+                in_front=_in_front(cameras, points),
             )
         )
 
@@ -253,7 +253,7 @@ class SharedCamera:
         for position in which:
             triplet = self.triplets[position]
             poses, points = self.poses_and_points(triplet)
-            triplet.in_front = bool(np.all(_depths(poses, points) > 0))
+            triplet.in_front = _in_front(poses, points)
             if triplet.in_front:
                 kept.append(position)
         return kept
@@ -320,9 +320,9 @@ class SharedCamera:
         )
 
 
-def _depths(cameras: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(3, n) depth of each point (n, 3) in each camera ``[R | t]`` (3, 3, 4)."""
-    return np.asarray(points @ cameras[:, 2, :3].T + cameras[:, 2, 3]).T
+def _in_front(cameras: np.ndarray, points: np.ndarray) -> bool:
+    """Whether every point (n, 3) lies in front of every camera ``[R | t]`` (3, 3, 4)."""
+    return bool(np.all(points @ cameras[:, 2, :3].T + cameras[:, 2, 3] > 0))
 
 
 @dataclass(frozen=True)
