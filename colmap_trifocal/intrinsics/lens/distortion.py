@@ -138,6 +138,11 @@ class LensDistortion:
             the stored model holds the lens (or has no richer model).
         richer_distortion: that model's fitted distortion (COLMAP's order), None
             without ``richer_model``: with ``intrinsics`` the camera to map with.
+        fits: where ``intrinsics_std`` was widened to reach another fit of the same
+            tracks (``richer_model``: the stored model's), each fit's (fx, fy, cx, cy)
+            and its own std, pixels, the reported one first; empty where the std is
+            one fit's own. A value outside every fit's own interval is one that no
+            model of the lens supports, however wide the widened std.
     """
 
     camera_model: str
@@ -152,6 +157,7 @@ class LensDistortion:
     misfit: bool = False
     richer_model: str | None = None
     richer_distortion: np.ndarray | None = None
+    fits: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
 
     @property
     def present(self) -> bool:
@@ -309,19 +315,19 @@ def _with_richer_model(
     if (extra / extra_std) ** 2 <= chi2.isf(SIGNIFICANCE, 1):
         return fitted
     stored_terms = len(fitted.distortion)
+    # Adding a term to a fit cannot make K better known than the fit without it.
+    own_std = np.fmax(wider.intrinsics_std, fitted.intrinsics_std)
     return replace(
         fitted,
         intrinsics=wider.intrinsics,
-        intrinsics_std=np.fmax(
-            np.fmax(wider.intrinsics_std, fitted.intrinsics_std),
-            np.abs(wider.intrinsics - fitted.intrinsics),
-        ),
+        intrinsics_std=np.fmax(own_std, np.abs(wider.intrinsics - fitted.intrinsics)),
         distortion_std=np.fmax(
             fitted.distortion_std, np.abs(wider.distortion[:stored_terms] - fitted.distortion)
         ),
         agreeing=wider.agreeing,
         richer_model=richer,
         richer_distortion=wider.distortion.copy(),
+        fits=((wider.intrinsics, own_std), (fitted.intrinsics, fitted.intrinsics_std)),
     )
 
 
