@@ -52,6 +52,7 @@ from ..polish.shared_camera import (
     cameras_at,
     shared_camera,
 )
+from ..solve.observability import HELD_FOCAL_STD
 from ..solve.parametrization import FreeParameters
 from .fit_statistics import (
     MAX_TRACKS,
@@ -298,7 +299,9 @@ def _with_richer_model(
 
     The two fits are two answers to which camera made the tracks; the data reject the
     stored model's, and the richer one may itself miss a term (tangential, k3), so each
-    std is at least the distance between them.
+    std is at least the distance between them. A stored model's fit whose f is known no
+    better than a held start's (``HELD_FOCAL_STD``) is no answer: the richer fit's own
+    std stands.
     """
     if lens.observed is not None:  # the warp's polynomial, its new term at 0
         terms = len(CameraInfo.blank(richer).distortion)
@@ -315,18 +318,27 @@ def _with_richer_model(
     if (extra / extra_std) ** 2 <= chi2.isf(SIGNIFICANCE, 1):
         return fitted
     stored_terms = len(fitted.distortion)
-    # Adding a term to a fit cannot make K better known than the fit without it.
-    own_std = np.fmax(wider.intrinsics_std, fitted.intrinsics_std)
-    return replace(
+    richer_fit = replace(
         fitted,
         intrinsics=wider.intrinsics,
-        intrinsics_std=np.fmax(own_std, np.abs(wider.intrinsics - fitted.intrinsics)),
+        intrinsics_std=wider.intrinsics_std,
         distortion_std=np.fmax(
             fitted.distortion_std, np.abs(wider.distortion[:stored_terms] - fitted.distortion)
         ),
         agreeing=wider.agreeing,
         richer_model=richer,
         richer_distortion=wider.distortion.copy(),
+    )
+    if not fitted.intrinsics_std[0] < HELD_FOCAL_STD * fitted.intrinsics[0]:
+        # The stored model's fit knows f no better than a held start: it ran off along
+        # the focal length and answers nothing (EuRoC's first 5 frames: 834 ± 420 px,
+        # the RADIAL fit 474 ± 18, truth 459).
+        return richer_fit
+    # Adding a term to a fit cannot make K better known than the fit without it.
+    own_std = np.fmax(wider.intrinsics_std, fitted.intrinsics_std)
+    return replace(
+        richer_fit,
+        intrinsics_std=np.fmax(own_std, np.abs(wider.intrinsics - fitted.intrinsics)),
         fits=((wider.intrinsics, own_std), (fitted.intrinsics, fitted.intrinsics_std)),
     )
 
