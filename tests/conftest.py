@@ -320,18 +320,17 @@ def database_cache(
 
 
 @pytest.fixture(scope="session")
-def real_scene_database(database_cache: DatabaseCache) -> Callable[..., Path]:
-    """Factory: (scene name, ``default`` or ``pinhole``[, images]) -> the scene's database
-    as ``benchmarks/real_scenes.py`` defines it (COLMAP's default extraction; the same
-    matches on one PINHOLE camera at COLMAP's guess), of the images ``images`` (a slice of
-    the dataset's order; default all). Cached (:class:`DatabaseCache`): read it, copy it
-    to write. Only for ``real_data`` tests."""
-    from real_scenes import SCENES_BY_NAME, derive_pinhole_database, image_names
+def real_scene_database(database_cache: DatabaseCache) -> Callable[[str, str], Path]:
+    """Factory: (scene name, ``default`` or ``pinhole``) -> the scene's database as
+    ``benchmarks/real_scenes.py`` defines it (COLMAP's default extraction; the same matches
+    on one PINHOLE camera at COLMAP's guess), a subset's too. Cached
+    (:class:`DatabaseCache`): read it, copy it to write. Only for ``real_data`` tests."""
+    from real_scenes import SCENES_BY_NAME, derive_pinhole_database
 
-    def get(name: str, kind: str, images: slice = slice(None)) -> Path:
+    def get(name: str, kind: str) -> Path:
         scene = SCENES_BY_NAME[name]
         data = scene.read(shared_dataset(""))
-        names = image_names(data)[images]
+        names = scene.image_names(data)
         default = database_cache.get(data.image_dir, names, **scene.build_options())
         if kind == "default":
             return default
