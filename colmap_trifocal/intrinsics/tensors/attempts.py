@@ -32,8 +32,8 @@ from ..start.candidates import StartCandidate, moved_far, other_starts, restart_
 from ..start.focal_search import FocalSearchResult
 from .estimator import TensorEstimator, TensorSet
 
-#: Tensors that must agree with an estimate for it to stand (a majority when the camera
-#: has fewer than 4 triplets, :func:`consensus`): below, every value is held at the start.
+#: Tensors that must agree with an estimate for it to stand (fewer when the camera
+#: has fewer triplets): below, every value is held at the start.
 MIN_AGREEING = 3
 
 
@@ -270,13 +270,11 @@ def majority(inliers: np.ndarray) -> bool:
 
 
 def consensus(fallback: FallbackSolution) -> bool:
-    """Whether at least ``MIN_AGREEING`` tensors agree with the estimate, or where the
-    camera has so few that this is more than a majority (3 tensors), a majority: one or
-    two tensors among many that agree with a K are as likely to agree by chance as
-    because it is the camera's, while two of three agreeing are a majority of all the
-    evidence (a 9-image partial ring has 3 triplets with enough tracks)."""
+    """Whether at least ``MIN_AGREEING`` tensors (all, when there are fewer) agree with
+    the estimate: one or two tensors among many that agree with a K are as likely to
+    agree by chance as because it is the camera's."""
     inliers = fallback.solution.inlier_tensors
-    return int(inliers.sum()) >= min(MIN_AGREEING, len(inliers) // 2 + 1)
+    return int(inliers.sum()) >= min(MIN_AGREEING, len(inliers))
 
 
 def checked_estimate(best: Attempt, camera_id: int, method: str) -> np.ndarray:
