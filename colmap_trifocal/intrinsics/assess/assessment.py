@@ -302,8 +302,8 @@ def held_where_indecisive(
 
     Where the std was widened to reach a second fit of the lens (the stored model's, where
     a richer model holds the lens: :attr:`.LensDistortion.fits`), its interval reaches as
-    far beyond the reported fit as towards the other; a start beyond every fit's own
-    ``rule.z`` std is supported by no model of the lens and is not held
+    far beyond the reported fit as towards the other; a focal length's start beyond every
+    fit's own ``rule.z`` std is supported by no model of the lens and is not held
     (:func:`supported_by_a_fit` leaves its name out of the rule's). On 7
     EuRoC frames in COLMAP's default camera (f 902 px, truth 459) the RADIAL fit gave
     477 ± 14 px and the SIMPLE_RADIAL one 663 ± 47: the widened std of 186 px held the

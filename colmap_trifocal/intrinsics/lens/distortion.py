@@ -329,7 +329,7 @@ def _with_richer_model(
         richer_model=richer,
         richer_distortion=wider.distortion.copy(),
     )
-    if not fitted.intrinsics_std[0] < HELD_FOCAL_STD * fitted.intrinsics[0]:
+    if fitted.intrinsics_std[0] >= HELD_FOCAL_STD * fitted.intrinsics[0]:
         # The stored model's fit knows f no better than a held start: it ran off along
         # the focal length and answers nothing (EuRoC's first 5 frames: 834 ± 420 px,
         # the RADIAL fit 474 ± 18, truth 459).
