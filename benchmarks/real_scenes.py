@@ -51,7 +51,7 @@ class RealScene:
 
     def image_names(self, data: DatasetScene) -> list[str]:
         """The scene's images (relative to ``data.image_dir``), in the dataset's order."""
-        return image_names(data)[self.first : self.stop]
+        return [view.name for view in data.views][self.first : self.stop]
 
     def truth(self, root: Path) -> np.ndarray:
         """(fx, fy, cx, cy) in pixels, COLMAP's pixel convention."""
@@ -100,11 +100,6 @@ SUBSETS = (
     ),
 )
 SCENES_BY_NAME = {scene.name: scene for scene in SCENES + SUBSETS}
-
-
-def image_names(scene: DatasetScene) -> list[str]:
-    """The scene's images (relative to ``scene.image_dir``) in the dataset's order."""
-    return [view.name for view in scene.views]
 
 
 def build_default_database(scene: RealScene, root: Path, target: Path) -> Path:

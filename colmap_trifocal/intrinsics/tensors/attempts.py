@@ -274,9 +274,9 @@ def held_where_nothing_agrees(inputs: AttemptInputs, best: Attempt) -> Attempt:
 
 def held_at_the_start(candidate: StartCandidate, prior: np.ndarray) -> StartCandidate:
     """``candidate`` holding the start's values where it held the focal search's: with no
-    tensors agreeing at that focal length, the search (whose hypotheses assume the tracks
-    are a pinhole camera's) is not evidence against the start; the start is known no
-    better than its disagreement with the search."""
+    tensors, or only a minority, agreeing at that focal length, the search (whose
+    hypotheses assume the tracks are a pinhole camera's) is not evidence against the
+    start; the start is known no better than its disagreement with the search."""
     if candidate.held_source != "focal-search":
         return candidate
     prior = np.asarray(prior, float)
