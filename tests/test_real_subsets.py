@@ -144,8 +144,10 @@ def test_near_straight_driving_is_never_far_off_with_a_tight_std(
 ) -> None:
     """KITTI's last 11 frames (4° of turn) from COLMAP's guess (f 1489 px, truth 719). Seed
     0: f 2 % off. Seed 4: the focal search found a decisive curve at 282 px and 3 of 19
-    tensors agreed there; f was reported at 282 ± 21 px (21 std off). Now it is held at
-    the guess with the guess's std widened to the search's disagreement."""
+    tensors agreed there; f was reported at 282 ± 21 px (21 std off). The constraint
+    solve now holds f at the guess, and the triplets' joint adjustment, from the guess,
+    estimates it where 14 of the 19 tensors agree with it: 2 % off (it was the guess, 107 %
+    off, in the twenty-sixth session)."""
     truth = SCENES_BY_NAME["kitti-seq2-last11"].truth(shared_dataset(""))
     database = real_scene_database("kitti-seq2-last11", "default")
     (result,) = calibrate_database(database, CalibrationOptions(seed=seed))
@@ -153,5 +155,32 @@ def test_near_straight_driving_is_never_far_off_with_a_tight_std(
     assert std is not None and abs(result.fx - truth[0]) < 2 * std
     error, start_error = _errors(result, truth)
     assert error <= start_error + 1e-9
-    if seed == 0:
-        assert abs(result.fx / truth[0] - 1) < 0.03
+    assert abs(result.fx / truth[0] - 1) < 0.03
+
+
+@pytest.mark.real_data
+@pytest.mark.slow
+@pytest.mark.parametrize("start", ["guess", "prior"])
+def test_a_sparse_object_capture_uses_more_of_its_images_and_leaves_the_guess(
+    start: str, real_scene_database: Callable[[str, str], Path]
+) -> None:
+    """30 of NeRF lego's renders on one PINHOLE camera: 7 triplets have 30 tracks that
+    close a 3-cycle, over 16 of the 30 images, and their constraints know f to 8 %; every
+    value was held at the start (COLMAP's guess: f 13.6 % off). Chained tracks give 20
+    triplets over 23 images, and where the constraints still hold f the triplets' joint
+    adjustment estimates it (pycolmap's mapping: 1.4 %)."""
+    truth = SCENES_BY_NAME["lego-30"].truth(shared_dataset(""))
+    database = real_scene_database("lego-30", "pinhole")
+    prior = None if start == "guess" else prior_5(truth, 1)
+    (result,) = calibrate_database(database, CalibrationOptions(prior=prior, seed=1))
+    assert len({image for t in result.triplets for image in t.image_ids}) > 20
+    assert result.source["fx"] == "trifocal"
+    bundle = result.triplet_bundle
+    assert bundle is not None and bundle["focal_length"].startswith("estimated")
+    error, start_error = _errors(result, truth)
+    assert error < 2.0 < start_error
+    assert abs(result.fx / truth[0] - 1) < 0.03
+    for index, name in enumerate(NAMES):
+        std = result.std[name]
+        if std is not None:
+            assert abs(result.intrinsics[index] - truth[index]) < 2 * std, name

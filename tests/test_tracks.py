@@ -28,6 +28,34 @@ def test_tracks_need_a_consistent_three_cycle() -> None:
     assert len(graph.track_indices(1, 2, 4)) == 0  # no matches with image 4
 
 
+def test_chained_tracks_need_two_pairs_and_no_contradiction() -> None:
+    matches = {
+        (1, 2): np.array([[0, 0], [1, 1], [2, 2], [3, 3], [5, 5]]),
+        (1, 3): np.array([[0, 0], [1, 1], [4, 4], [5, 6]]),
+        (2, 3): np.array([[0, 0], [2, 2], [4, 4], [5, 5]]),
+    }
+    graph = MatchGraph(matches, dict.fromkeys((1, 2, 3), 7))
+    chained = graph.chained_track_indices(1, 2, 3)
+    # 0: every pair links it (a 3-cycle); 1: (1, 2) and (1, 3); 2: (1, 2) and (2, 3);
+    # 4: (1, 3) and (2, 3); 3: one pair only; 5: (2, 3) links 5 to keypoint 5, (1, 3) to 6.
+    np.testing.assert_array_equal(chained, [[0, 0, 0], [1, 1, 1], [2, 2, 2], [4, 4, 4]])
+    cycles = graph.track_indices(1, 2, 3)
+    assert {tuple(row) for row in cycles} <= {tuple(row) for row in chained}
+    np.testing.assert_array_equal(cycles, [[0, 0, 0]])
+
+
+def test_chained_tracks_bring_in_triplets_the_three_cycles_miss() -> None:
+    """Each pair's matches keep a different two thirds of 60 shared points: 20 tracks
+    close the 3-cycle (too few for 30), every one of the 60 is chained."""
+    points = np.arange(60)
+    keep = {(1, 2): points % 3 != 0, (1, 3): points % 3 != 1, (2, 3): points % 3 != 2}
+    matches = {pair: np.stack([points[k], points[k]], axis=1) for pair, k in keep.items()}
+    graph = MatchGraph(matches, dict.fromkeys((1, 2, 3), 60))
+    assert select_triplets(graph, [1, 2, 3], 30, 20) == []
+    (triplet,) = select_triplets(graph, [1, 2, 3], 30, 20, chained=True)
+    np.testing.assert_array_equal(triplet.keypoint_indices, np.stack([points] * 3, axis=1))
+
+
 def test_all_triplets_when_under_the_limit() -> None:
     triplets = select_triplets(complete_graph(5, 50), list(range(1, 6)), 40, None)
     assert len(triplets) == 10

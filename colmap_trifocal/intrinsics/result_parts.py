@@ -78,7 +78,9 @@ class Diagnostics:
             (:mod:`intrinsics.polish.bundle`): ``used`` (it replaced the constraint
             estimate), ``agreeing`` triplets (λ < τ²; None when it failed) and the
             constraint estimate it started from (``constraints``: fx, fy, cx, cy in
-            pixels). None when it did not run.
+            pixels); where the constraint solve held the principal point or the focal
+            length, ``principal_point`` and ``focal_length`` say whether the
+            adjustment estimated it or why it stays held. None when it did not run.
         lens_distortion: the lens distortion the triplets' calibrated bundle adjustment
             found (:mod:`intrinsics.lens.distortion`): ``present``, ``params`` and
             ``std`` (COLMAP's order of the model's extra parameters), the
