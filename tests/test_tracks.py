@@ -7,7 +7,13 @@ from itertools import combinations
 
 import numpy as np
 
-from colmap_trifocal.geometry.tracks import MatchGraph, Triplet, select_triplets, spread_triplets
+from colmap_trifocal.geometry.tracks import (
+    MatchGraph,
+    Triplet,
+    candidate_triplets,
+    select_triplets,
+    spread_triplets,
+)
 
 
 def complete_graph(num_images: int, num_tracks: int) -> MatchGraph:
@@ -54,6 +60,23 @@ def test_chained_tracks_bring_in_triplets_the_three_cycles_miss() -> None:
     assert select_triplets(graph, [1, 2, 3], 30, 20) == []
     (triplet,) = select_triplets(graph, [1, 2, 3], 30, 20, chained=True)
     np.testing.assert_array_equal(triplet.keypoint_indices, np.stack([points] * 3, axis=1))
+
+
+def test_the_chained_bound_counts_what_two_pairs_can_link() -> None:
+    """A chained track takes a match of at least two pairs: with 100, 5 and 5 matches at
+    most 10 (half the sum, 55, would let a 30-track threshold evaluate it)."""
+
+    def pairs(counts: dict[tuple[int, int], int]) -> MatchGraph:
+        matches = {pair: np.stack([np.arange(n)] * 2, axis=1) for pair, n in counts.items()}
+        return MatchGraph(matches, dict.fromkeys((1, 2, 3), 100))
+
+    graph = pairs({(1, 2): 100, (1, 3): 5, (2, 3): 5})
+    (_, [bound]) = candidate_triplets(graph, [1, 2, 3], None, chained=True)
+    assert bound == 10 >= len(graph.chained_track_indices(1, 2, 3))
+    graph = pairs({(1, 2): 40, (1, 3): 40, (2, 3): 40})
+    (_, [bound]) = candidate_triplets(graph, [1, 2, 3], None, chained=True)
+    assert bound == 60 >= len(graph.chained_track_indices(1, 2, 3)) == 40
+    assert candidate_triplets(graph, [1, 2, 3], None)[1].tolist() == [40]
 
 
 def test_all_triplets_when_under_the_limit() -> None:

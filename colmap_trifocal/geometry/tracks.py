@@ -270,7 +270,8 @@ def candidate_triplets(
     best-matched neighbours (None: all triangles). Returns the sorted id triples
     and the bound, best bound first: the smallest of the three pair match counts, or
     for ``chained`` tracks (:meth:`MatchGraph.chained_track_indices`, each of which
-    takes one match of at least two pairs) half their sum.
+    takes one match of at least two pairs, so one of the two smaller pairs') the
+    smaller of half their sum and the sum of the two smallest.
     """
     allowed = set(image_ids)
     adjacent = {i: n & allowed for i, n in graph.neighbours().items() if i in allowed}
@@ -294,7 +295,11 @@ def candidate_triplets(
         ],
         dtype=np.int64,
     ).reshape(-1, 3)
-    bounds = counts.sum(axis=1) // 2 if chained else counts.min(axis=1)
+    if chained:
+        ordered_counts = np.sort(counts, axis=1)
+        bounds = np.minimum(counts.sum(axis=1) // 2, ordered_counts[:, :2].sum(axis=1))
+    else:
+        bounds = counts.min(axis=1)
     order = np.argsort(-bounds, kind="stable")
     return [ordered[o] for o in order], bounds[order]
 
