@@ -21,7 +21,7 @@ images; never further than the start; ±2 std coverage ≥ 90 %), and writes eve
 figure to ``--out/real.json``.
 
 With ``--subsets`` the same for ``real_scenes.SUBSETS`` instead: fewer images of the same
-scenes (EuRoC's first 5 and 7 and last 8 frames, the ring's first 9 and 12 views, 30 lego
+scenes (EuRoC's first 5 and 7 and last 8 frames, the ring's first 9 and 12 views, 30 and 20 lego
 renders, 5 Strecha images, 16 and 11 KITTI frames), the shorter captures of each class
 that the hidden checks bring.
 

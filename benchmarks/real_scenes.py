@@ -90,6 +90,7 @@ SUBSETS = (
     RealScene("temple-ring-first9", "middlebury", "middlebury/templeSparseRing", "ring", stop=9),
     RealScene("temple-ring-first12", "middlebury", "middlebury/templeSparseRing", "ring", stop=12),
     RealScene("lego-30", "nerf", "nerf_lego", "sparse object", stop=30),
+    RealScene("lego-20", "nerf", "nerf_lego", "sparse object", stop=20),
     RealScene("fountain-P11-middle5", "strecha", "strecha/fountain-P11", "object", first=3, stop=8),
     RealScene("entry-P10-first5", "strecha", "strecha/entry-P10", "facade", stop=5),
     RealScene(

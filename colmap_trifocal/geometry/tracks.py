@@ -5,7 +5,9 @@ of j and one of k, where the verified matches of (j, k) also link those two
 keypoints: the 3-cycle check removes most mismatches before any tensor is fit.
 "Tracks" are pixel coordinates (3, n, 2) (:func:`triplet_points`); the keypoint
 indices (n, 3) they come from are a triplet's ``keypoint_indices``
-(:meth:`MatchGraph.track_indices`).
+(:meth:`MatchGraph.track_indices`). On a sparse capture, where few tracks close the
+3-cycle, a triplet's chained tracks (:meth:`MatchGraph.chained_track_indices`: two of
+the three pairs link them, the third does not contradict them) can be used instead.
 
 Selection, bounded for large databases (:func:`select_triplets`):
 
