@@ -109,7 +109,7 @@ class Polished:
         intrinsics: (fx, fy, cx, cy), pixels.
         relative_std: (4,) std relative to the focal length.
         agreeing: triplets that agree with ``intrinsics``.
-        summary: the JSON ``triplet_bundle`` report, None when it did not run.
+        summary: the JSON ``triplet_bundle`` report, None when no adjustment ran.
         free_parameters: which of (fx, fy, cx, cy) ``intrinsics`` estimates: the
             constraint solve's, and the principal point and one focal length where the
             polish estimated what the solve held (:func:`release_held`).
@@ -133,9 +133,15 @@ def polish(given: PolishInput) -> Polished:
     if released is not None:
         return released
     polished = _polish_solved(given, observed)
-    if polished.summary is not None:
-        for name in _released_names(given.fallback.free_parameters, wider):
-            polished.summary[name] = f"held: {why_held}"
+    if polished.summary is None:
+        # Nothing else to adjust (the solve held every value): the release's is the report.
+        polished.summary = {
+            "used": False,
+            "agreeing": None,
+            "constraints": dict(zip(PARAMETER_NAMES, map(float, given.estimate), strict=True)),
+        }
+    for name in _released_names(given.fallback.free_parameters, wider):
+        polished.summary[name] = f"held: {why_held}"
     return polished
 
 
@@ -276,8 +282,10 @@ def _too_few_for_a_focal_length(result: TripletBundleResult, tensors: int) -> st
     adjustment would stand for all of them.
     """
     kept = int(result.agreeing.sum())
-    if kept < MIN_FOCAL_TRIPLETS or 2 * kept <= tensors:
-        return f"{kept} of {tensors} triplets agree with it"
+    if kept < MIN_FOCAL_TRIPLETS:
+        return f"{kept} triplets agree with it, fewer than {MIN_FOCAL_TRIPLETS}"
+    if 2 * kept <= tensors:
+        return f"{kept} of {tensors} triplets agree with it, not a majority"
     return None
 
 
