@@ -49,11 +49,12 @@ polish's (the larger of its covariance's and its jackknife's), not the held valu
 sparse capture each triplet's constraints can know the focal length worse than the
 fallback's standard, and the solve holds it at the start with everything else; the
 triplets adjusted together with one camera can still determine it. The polish then
-estimates one focal length and the principal point, under the same test, and
-where more than half of the tensors agree with it: a focal length is what the tensors'
-consensus decides. On 30 of NeRF lego's renders from COLMAP's guess (13.6 % off) the
-solve holds f with a std of 4 %; the adjustment of the 13 triplets gives it 1.5 % off
-with a std of 2.9 % (docs/accuracy.md, twenty-seventh session).
+estimates one focal length and the principal point, under the same test, and where
+at least ``MIN_FOCAL_TRIPLETS`` triplets and more than half of the tensors agree with
+it (:func:`_too_few_for_a_focal_length`). On 30 of NeRF lego's renders from COLMAP's
+guess (13.6 % off) the solve holds f with a std of 4 %; the adjustment of the 13
+triplets gives it 1.5 % off with a std of 2.9 % (docs/accuracy.md, twenty-seventh
+session).
 
 Intrinsics in pixels; std relative to the focal length (θ units) unless named.
 """
@@ -226,7 +227,7 @@ def release_held(
         )
         return None, why
     # The solve's estimated parameters keep at least its std (as in the polish);
-    # the principal point has the polish's own, not the held value's.
+    # what it held has the polish's own, not the held value's.
     relative_std = result.std / scale
     relative_std = np.where(
         _estimated(fallback), np.maximum(fallback.relative_std, relative_std), relative_std
