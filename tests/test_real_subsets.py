@@ -165,7 +165,7 @@ def test_a_sparse_object_capture_uses_more_of_its_images_and_leaves_the_guess(
     start: str, real_scene_database: Callable[[str, str], Path]
 ) -> None:
     """30 of NeRF lego's renders on one PINHOLE camera: 7 triplets have 30 tracks that
-    close a 3-cycle, over 16 of the 30 images, and their constraints know f to 8 %; every
+    close a 3-cycle, over 16 of the 30 images, and their constraints know f to 7 %; every
     value was held at the start (COLMAP's guess: f 13.6 % off). Chained tracks give 20
     triplets over 23 images, and where the constraints still hold f the triplets' joint
     adjustment estimates it (pycolmap's mapping: 1.4 %)."""

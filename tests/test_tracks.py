@@ -51,8 +51,8 @@ def test_chained_tracks_need_two_pairs_and_no_contradiction() -> None:
 
 
 def test_chained_tracks_bring_in_triplets_the_three_cycles_miss() -> None:
-    """Each pair's matches keep a different two thirds of 60 shared points: 20 tracks
-    close the 3-cycle (too few for 30), every one of the 60 is chained."""
+    """Each pair's matches keep a different two thirds of 60 shared points: no track
+    closes the 3-cycle, every one of the 60 is chained."""
     points = np.arange(60)
     keep = {(1, 2): points % 3 != 0, (1, 3): points % 3 != 1, (2, 3): points % 3 != 2}
     matches = {pair: np.stack([points[k], points[k]], axis=1) for pair, k in keep.items()}
