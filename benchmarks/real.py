@@ -25,7 +25,7 @@ scenes (EuRoC's first 5 and 7 and last 8 frames, the ring's first 9 and 12 views
 renders, 5 Strecha images, 16 and 11 KITTI frames), the shorter captures of each class
 that the hidden checks bring.
 
-    python benchmarks/real.py [--scenes fountain-P11,entry-P10 | --subsets]
+    python benchmarks/real.py [--scenes fountain-P11,lego-30] [--subsets]
         [--databases default] [--seeds 0-4] [--no-mapping] [--out benchmark_output/real]
 """
 
@@ -347,9 +347,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawTextHelpFormatter
     )
-    parser.add_argument("--scenes", default=",".join(s.name for s in SCENES))
     parser.add_argument(
-        "--subsets", action="store_true", help="the scenes cut to fewer images instead"
+        "--scenes", help="comma-separated names, subsets' too (default: every scene)"
+    )
+    parser.add_argument(
+        "--subsets", action="store_true", help="every scene cut to fewer images instead"
     )
     parser.add_argument("--databases", default=",".join(DATABASE_KINDS))
     parser.add_argument("--seeds", default="0-4", help="seeds of the runs (e.g. 0-4 or 0,3)")
@@ -367,7 +369,8 @@ def main() -> None:
         f"pycolmap {pycolmap.__version__}, seeds {args.seeds}, {time.strftime('%Y-%m-%d %H:%M')}"
     )
     all_figures = []
-    names = [s.name for s in SUBSETS] if args.subsets else args.scenes.split(",")
+    default = SUBSETS if args.subsets else SCENES
+    names = args.scenes.split(",") if args.scenes else [s.name for s in default]
     for name in names:
         scene = SCENES_BY_NAME[name]
         truth = scene.truth(root)

@@ -139,9 +139,9 @@ def polish(given: PolishInput) -> Polished:
         polished.summary = {
             "used": False,
             "agreeing": None,
-            "constraints": dict(zip(PARAMETER_NAMES, map(float, given.estimate), strict=True)),
+            "constraints": _by_name(given.estimate),
         }
-    for name in _released_names(given.fallback.free_parameters, wider):
+    for name in _released_names(given.fallback.free_parameters):
         polished.summary[name] = f"held: {why_held}"
     return polished
 
@@ -154,12 +154,17 @@ def released_parameters(solved: FreeParameters) -> FreeParameters | None:
     return None if wider == solved else wider
 
 
-def _released_names(solved: FreeParameters, wider: FreeParameters) -> list[str]:
-    """The summary keys of what ``wider`` estimates and ``solved`` held."""
-    names = ["focal_length"] if solved.focal == "held" and wider.focal != "held" else []
+def _released_names(solved: FreeParameters) -> list[str]:
+    """The summary keys of what :func:`released_parameters` releases of ``solved``."""
+    names = ["focal_length"] if solved.focal == "held" else []
     if not (solved.cx and solved.cy):
         names.append("principal_point")
     return names
+
+
+def _by_name(intrinsics: np.ndarray) -> dict[str, float]:
+    """(fx, fy, cx, cy), pixels, as the JSON report's ``{"fx": ..., ...}``."""
+    return dict(zip(PARAMETER_NAMES, map(float, intrinsics), strict=True))
 
 
 def _polish_solved(given: PolishInput, observed: list[Observed] | None = None) -> Polished:
@@ -177,7 +182,7 @@ def _polish_solved(given: PolishInput, observed: list[Observed] | None = None) -
     if pycolmap_camera_setup(free_parameters) is None:
         return unchanged
     scale = focal_scale(start)
-    constraints = dict(zip(PARAMETER_NAMES, map(float, estimate), strict=True))
+    constraints = _by_name(estimate)
     skip, predicted = not_worth_it(tensors, tracks, start, estimate, fallback, scale, workers)
     if skip:
         logger.info("camera %d: bundle adjustment of the triplets not run: %s", camera_id, skip)
@@ -214,7 +219,7 @@ def release_held(
     result = polish_intrinsics(given, wider, observed=observed)
     scale = focal_scale(start)
     why = _not_determined(result, wider, scale, fallback.tolerances, given.agreeing)
-    names = _released_names(fallback.free_parameters, wider)
+    names = _released_names(fallback.free_parameters)
     if why is None and result is not None and "focal_length" in names:
         why = _too_few_for_a_focal_length(result, len(given.tensors))
     if why or result is None:
@@ -235,7 +240,7 @@ def release_held(
     summary: dict[str, object] = {
         "used": True,
         "agreeing": int(result.agreeing.sum()),
-        "constraints": dict(zip(PARAMETER_NAMES, map(float, given.estimate), strict=True)),
+        "constraints": _by_name(given.estimate),
     }
     for name in names:
         summary[name] = "estimated by the adjustment (the constraint solve held it)"

@@ -244,32 +244,35 @@ def held_where_nothing_agrees(inputs: AttemptInputs, best: Attempt) -> Attempt:
     std."""
     if inputs.method == "direct":
         return best
+    candidate = held_at_the_start(best.candidate, inputs.data.prior)
     if consensus(best.fallback):
         free_parameters = best.fallback.free_parameters
-        if best.majority_agrees or free_parameters.focal != "held":
+        if best.majority_agrees or free_parameters.focal != "held" or candidate is best.candidate:
             return best
-        candidate = held_at_the_start(best.candidate, inputs.data.prior)
-        if candidate is best.candidate:
-            return best
-        logger.info(
-            "camera %d: %d of %d tensors agree with the focal search's focal length: "
-            "held at the start",
-            inputs.data.camera.camera_id,
-            best.agreeing,
-            len(best.tensors.tensors),
-        )
-        with_start = solve(inputs, candidate, best.tensors, free_parameters)
-        return Attempt(candidate, best.tensors, with_start)
-    candidate = held_at_the_start(best.candidate, inputs.data.prior)
+        what = "the focal search's focal length: held at the start"
+        return _solved_at(inputs, best, candidate, free_parameters, what)
     if best.fallback.free_parameters.dimension == 0 and candidate is best.candidate:
         return best  # already held, at the start's values
+    return _solved_at(inputs, best, candidate, HELD, "the estimate: every value held")
+
+
+def _solved_at(
+    inputs: AttemptInputs,
+    best: Attempt,
+    candidate: StartCandidate,
+    free_parameters: FreeParameters,
+    what: str,
+) -> Attempt:
+    """``best``'s tensors solved again from ``candidate`` for ``free_parameters``; the log
+    says how many tensors agree with ``what``."""
     logger.info(
-        "camera %d: %d of %d tensors agree with the estimate: every value held",
+        "camera %d: %d of %d tensors agree with %s",
         inputs.data.camera.camera_id,
         best.agreeing,
         len(best.tensors.tensors),
+        what,
     )
-    return Attempt(candidate, best.tensors, solve(inputs, candidate, best.tensors, HELD))
+    return Attempt(candidate, best.tensors, solve(inputs, candidate, best.tensors, free_parameters))
 
 
 def held_at_the_start(candidate: StartCandidate, prior: np.ndarray) -> StartCandidate:
