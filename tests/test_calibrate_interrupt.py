@@ -1,9 +1,10 @@
 """A signal in the middle of ``calibrate``'s parallel tensor stage ends the process promptly.
 
-The tensors of the triplets are estimated by worker threads (``common.parallel.map_jobs``);
-the main thread waits on their results. A SIGTERM (or Ctrl-C, or a hangup) must end the
+The tensors of the triplets are estimated by forked worker processes
+(``common.parallel.map_jobs``), which leave the signals to the main thread; it waits on
+their results. A SIGTERM (or Ctrl-C, or a hangup) must end the
 run at once, with the documented one line and exit status, not after the remaining
-triplets. The process is the point here (real signals, real worker threads): a subprocess
+triplets. The process is the point here (real signals, real worker processes): a subprocess
 on a synthetic database whose tensor stage lasts seconds.
 """
 

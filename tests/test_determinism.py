@@ -65,8 +65,10 @@ def test_cli_same_seed_same_json(database: tuple[Path, np.ndarray], tmp_path: Pa
 def test_api_same_seed_same_bits_for_any_number_of_workers(
     database: tuple[Path, np.ndarray], method: str
 ) -> None:
-    """The API with 1 (in process) and 2 worker processes, twice: identical results
-    (one seed, one result, whatever the number of workers: the default is one per core)."""
+    """The API with 1 (in process) and 2 workers, twice: identical results (one seed,
+    one result, whatever the number of workers: the default is one per core). The workers
+    are threads here (an xdist worker does not fork); ``tests/test_parallel.py`` checks
+    the forked processes the command line uses."""
     path, _ = database
     options = CalibrationOptions(method=method, seed=11)
     results = [

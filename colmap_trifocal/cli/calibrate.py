@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..common.arguments import seed
+from ..common.arguments import MAX_WORKERS_FLAG, integer_in, seed
 from ..common.errors import CalibrationError
 from ..common.files import Input, Output, refuse_outputs_over_inputs
 from .output import check_output_file, check_output_folder, is_stdout, write_text_output
@@ -84,6 +84,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def _add_output_arguments(calibrate: argparse.ArgumentParser) -> None:
     """Where the estimate goes (JSON, cameras.txt, the database), and how the run works."""
+    from ..common.parallel import MAX_WORKERS
     from ..intrinsics.api import CalibrationOptions
 
     calibrate.add_argument(
@@ -124,6 +125,13 @@ def _add_output_arguments(calibrate: argparse.ArgumentParser) -> None:
         help="start the tensors from the prior's focal length instead of searching it",
     )
     calibrate.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    calibrate.add_argument(
+        "--workers",
+        type=integer_in(1, MAX_WORKERS_FLAG),
+        metavar="N",
+        help="worker processes and threads (default: one per core, at most "
+        f"{MAX_WORKERS}; 1: all the work in this process). The result is the same",
+    )
 
 
 def _add_model_arguments(calibrate: argparse.ArgumentParser) -> None:
@@ -275,6 +283,7 @@ def _options(args: argparse.Namespace) -> CalibrationOptions:
         no_prior=args.no_prior,
         progress=not args.no_progress and sys.stderr.isatty(),
         group=args.group,
+        workers=args.workers,
     )
 
 

@@ -13,7 +13,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..common.arguments import integer_in, seed
+from ..common.arguments import MAX_WORKERS_FLAG, integer_in, seed
 from ..common.errors import CalibrationError
 from ..common.extras import require_extra
 from ..common.files import Input, Output, refuse_outputs_over_inputs, write_text_atomically
@@ -26,8 +26,6 @@ if TYPE_CHECKING:
 #: The most runs per case ``--runs`` takes: a sweep's size, not a typo's (1e13 runs asked
 #: for petabytes of seeds before).
 MAX_RUNS = 1_000_000
-#: The most local processes ``--workers`` starts.
-MAX_WORKERS = 256
 
 
 def check_dask_flag(address: str) -> None:
@@ -55,7 +53,7 @@ def add_common_flags(parser: argparse.ArgumentParser, stem: str) -> None:
     parser.add_argument("--json", type=Path, metavar="OUT", help="write every run as JSON")
     parser.add_argument(
         "--workers",
-        type=integer_in(1, MAX_WORKERS),
+        type=integer_in(1, MAX_WORKERS_FLAG),
         help="local processes (default: one per core)",
     )
     parser.add_argument("--dask", metavar="ADDRESS", help="run on this Dask scheduler instead")

@@ -21,6 +21,10 @@ def seed(text: str) -> int:
     return value
 
 
+#: The most workers a ``--workers`` flag asks for (a typo's bound, not a core count).
+MAX_WORKERS_FLAG = 256
+
+
 def integer_in(low: int, high: int) -> Callable[[str], int]:
     """An argparse type: an integer from ``low`` to ``high`` (both included)."""
 

@@ -186,8 +186,10 @@ class WorkOptions:
 
     Attributes:
         seed: the random seed; the same seed gives the same result bit for bit.
-        workers: processes estimating triplet tensors (None: one per core, at most 8).
-            Every triplet has its own seed, so the result does not depend on this.
+        workers: parallel workers (None: one per core, at most 8; 1: all the work in
+            the calling thread): forked processes fit the triplets' tensors where that
+            is safe, threads do the rest (:func:`..common.parallel.map_jobs`). Every
+            triplet has its own seed, so the result does not depend on this.
         progress: show progress bars (stderr).
     """
 

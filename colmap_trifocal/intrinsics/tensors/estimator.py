@@ -11,7 +11,9 @@ moves to a new start K, the tensors that agree with K are carried over exactly
 others are estimated again from K.
 
 Every triplet keeps its own seed, so the result does not depend on the order or the
-number of worker threads. The work is counted in refinement starts and bounded by
+number of workers. The fits run in forked worker processes where that is safe
+(:func:`..common.parallel.map_jobs`): each is Python-bound numpy that threads cannot
+run side by side. The work is counted in refinement starts and bounded by
 ``MAX_STARTS_PER_TRIPLET`` per triplet.
 """
 
@@ -197,6 +199,7 @@ class TensorEstimator:
             self.options.workers,
             f"camera {self.camera_id}: tensors",
             progress=self.options.progress,
+            processes=True,
         )
         for p, fit in zip(missing, fits, strict=True):
             self._cache[(key, p, second_start)] = fit

@@ -1,0 +1,176 @@
+"""The calibration's worker processes (``common.parallel.map_jobs`` with ``processes``).
+
+Forking is safe only from the main thread of a process that runs no other thread, which a
+pytest-xdist worker is not (it runs a thread for its channel): the forked paths are
+therefore checked in fresh interpreters (subprocesses), as the command line runs them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import threading
+from pathlib import Path
+
+import pytest
+
+from colmap_trifocal.common.parallel import can_fork, map_jobs
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from outlier_stress import make_outlier_database  # noqa: E402
+
+
+def _python(script: str, *args: str) -> subprocess.CompletedProcess[str]:
+    """``script`` run by a fresh interpreter (the package importable), its output."""
+    return subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(script), *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def test_forked_workers_run_closures_in_order_in_other_processes() -> None:
+    """From a fresh interpreter's main thread the jobs run in 2 other processes; a
+    closure over local data (which pickle cannot send) works, as the children inherit
+    it; the results come back in the jobs' order."""
+    run = _python(
+        """
+        import json, os
+        from colmap_trifocal.common.parallel import can_fork, map_jobs
+        offset = 1000
+        results = map_jobs(lambda job: (job + offset, os.getpid()), list(range(12)), 2,
+                           processes=True)
+        print(json.dumps({"can_fork": can_fork(), "parent": os.getpid(), "results": results}))
+        """
+    )
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    assert out["can_fork"] is True
+    assert [value for value, _ in out["results"]] == list(range(1000, 1012))
+    pids = {pid for _, pid in out["results"]}
+    assert out["parent"] not in pids
+    assert 1 <= len(pids) <= 2
+
+
+def test_beside_another_thread_the_jobs_run_in_threads() -> None:
+    """From a thread other than the main one (a caller's pool, a notebook, this xdist
+    worker) nothing is forked: the jobs run in this process."""
+    seen: list[object] = []
+    worker = threading.Thread(
+        target=lambda: seen.extend(
+            [can_fork(), map_jobs(lambda _: os.getpid(), [0, 1, 2], 2, processes=True)]
+        )
+    )
+    worker.start()
+    worker.join()
+    assert seen == [False, [os.getpid()] * 3]
+
+
+def test_a_job_error_reaches_the_caller_from_a_worker() -> None:
+    """An exception raised in a forked worker is raised in the caller, type and message."""
+    run = _python(
+        """
+        from colmap_trifocal.common.parallel import map_jobs
+        def job(value):
+            if value == 3:
+                raise ValueError(f"bad job {value}")
+            return value
+        try:
+            map_jobs(job, list(range(6)), 2, processes=True)
+        except ValueError as error:
+            print("caught:", error)
+        """
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip() == "caught: bad job 3"
+
+
+def test_a_dead_worker_is_a_calibration_error() -> None:
+    """A worker killed mid-job (out of memory, say) ends the map with CalibrationError,
+    which names the way to keep the work in one process, not with a hang."""
+    run = _python(
+        """
+        import os, signal
+        from colmap_trifocal import CalibrationError
+        from colmap_trifocal.common.parallel import map_jobs
+        def job(value):
+            if value == 2:
+                os.kill(os.getpid(), signal.SIGKILL)
+            return value
+        try:
+            map_jobs(job, list(range(6)), 2, processes=True)
+        except CalibrationError as error:
+            print("caught:", error)
+        """
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.startswith("caught: a worker process died")
+    assert "--workers 1" in run.stdout
+
+
+@pytest.fixture(scope="module")
+def database(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """8 images of one PINHOLE camera, 0.5 px of noise and 20 % wrong matches."""
+    path = tmp_path_factory.mktemp("parallel") / "database.db"
+    make_outlier_database(path, 0.2, seed=4, num_images=8, num_points=600)
+    return path
+
+
+def test_tensors_in_worker_processes_give_the_same_bits(database: Path) -> None:
+    """The calibration with its tensors fitted in 2 forked processes and with 1 worker
+    (everything in process): the same intrinsics, std and tensors, bit for bit."""
+    run = _python(
+        """
+        import json, sys
+        from colmap_trifocal import CalibrationOptions, calibrate_database
+        from colmap_trifocal.common import parallel
+        forked = []
+        in_processes = parallel._in_processes
+        def counted(function, jobs, workers, bar):
+            forked.append(len(jobs))
+            return in_processes(function, jobs, workers, bar)
+        parallel._in_processes = counted
+        out = {}
+        for workers in (2, 1):
+            (result,) = calibrate_database(sys.argv[1], CalibrationOptions(seed=3, workers=workers))
+            out[workers] = {
+                "intrinsics": result.intrinsics.tobytes().hex(),
+                "std": result.std,
+                "tensors": [t.tensor.tobytes().hex() for t in result.tensors],
+                "forked": list(forked),
+            }
+        print(json.dumps(out))
+        """,
+        str(database),
+    )
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    assert sum(out["2"]["forked"]) >= 8  # the tensor jobs went to worker processes
+    assert out["1"]["forked"] == out["2"]["forked"]  # and none with one worker
+    for key in ("intrinsics", "std", "tensors"):
+        assert out["1"][key] == out["2"][key], key
+
+
+def test_cli_workers_flag_changes_no_result(database: Path, tmp_path: Path) -> None:
+    """``calibrate --workers 1`` and ``--workers 2`` write the same JSON (times aside)."""
+    written = []
+    for workers in (1, 2):
+        out = tmp_path / f"{workers}.json"
+        run = subprocess.run(
+            [sys.executable, "-m", "colmap_trifocal.cli", "calibrate", str(database)]
+            + ["--seed", "3", "--workers", str(workers), "--json", str(out)],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert run.returncode == 0, run.stderr
+        entries = json.loads(out.read_text())
+        for entry in entries:
+            entry.pop("seconds")
+            entry.pop("stage_seconds")
+        written.append(entries)
+    assert written[0] == written[1]
