@@ -14,14 +14,16 @@ calibrations use processes of their own (:mod:`..evaluation.runner`).
 
 from __future__ import annotations
 
+import logging
+import logging.handlers
 import multiprocessing
 import os
+import queue
 import signal
 import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from typing import Any
 
@@ -30,8 +32,14 @@ from threadpoolctl import threadpool_limits
 from tqdm import TMonitor, tqdm
 
 from .errors import CalibrationError
+from .log import logger
 
 MAX_WORKERS = 8
+#: What a caller hears of a worker process that died (killed, out of memory).
+WORKER_DIED = (
+    "a worker process died; with one worker (--workers 1, workers=1) all the work stays "
+    "in this process"
+)
 
 
 def default_workers() -> int:
@@ -72,13 +80,14 @@ def map_jobs(
     processes: bool = False,
 ) -> list[Any]:
     """``[function(job) for job in jobs]``, in order, over ``workers`` threads, or with
-    ``processes`` over forked worker processes where :func:`can_fork` (threads elsewhere).
+    ``processes`` over the calling thread and ``workers - 1`` forked processes where
+    :func:`can_fork` (threads elsewhere).
 
     One worker, or a single job, runs in the calling thread. The processes inherit
-    ``function`` and ``jobs`` (closures included) with the fork; each result is pickled
-    back. On an exception (Ctrl-C included) the jobs not yet started are cancelled and
-    the running ones finish (each is one triplet: milliseconds), then the exception
-    propagates.
+    ``function`` and ``jobs`` (closures included) with the fork; their results are
+    pickled back. On an exception (Ctrl-C included) the jobs not yet started are
+    cancelled, running threads finish their job (each is one triplet: milliseconds) and
+    worker processes are ended; then the exception propagates.
 
     Raises:
         CalibrationError: a worker process died (killed, or out of memory).
@@ -95,8 +104,15 @@ def map_jobs(
         if processes and can_fork():
             return _in_processes(function, jobs, min(workers, len(jobs)), bar)
         executor = ThreadPoolExecutor(min(workers, len(jobs)))
-        futures = [executor.submit(function, job) for job in jobs]
-        return _collect(executor, futures, bar)
+        try:
+            futures = [executor.submit(function, job) for job in jobs]
+            results = []
+            for future in futures:
+                results.append(future.result())
+                bar.update()
+            return results
+        finally:
+            executor.shutdown(wait=True, cancel_futures=True)
     finally:
         bar.close()
 
@@ -120,55 +136,201 @@ def can_fork() -> bool:
     )
 
 
-#: The function and jobs of the running :func:`_in_processes`, which its forked workers
-#: inherit (so that only results cross between the processes).
-_INHERITED: tuple[Callable[[Any], Any], Sequence[Any]] | None = None
-
-
 def _in_processes(
     function: Callable[[Any], Any], jobs: Sequence[Any], workers: int, bar: tqdm
 ) -> list[Any]:
-    """:func:`map_jobs` over ``workers`` forked processes (see there)."""
-    global _INHERITED
-    _INHERITED = (function, jobs)
+    """:func:`map_jobs` over the calling thread and ``workers - 1`` forked processes.
+
+    Each takes the next job from a shared counter until none is left (a heavy triplet
+    delays no other); a child keeps its results and sends them when it runs out of jobs
+    (sent as they came, they would fill the pipe while the caller is busy with a job).
+    An exception in any job stops the others from taking more, and is raised here.
+    """
+    context = multiprocessing.get_context("fork")
+    taken = context.Value("q", 0)
+    children = []
     try:
-        executor = ProcessPoolExecutor(
-            workers, mp_context=multiprocessing.get_context("fork"), initializer=_in_worker
-        )
-        futures = [executor.submit(_inherited_job, index) for index in range(len(jobs))]
+        for _ in range(workers - 1):
+            receiving, sending = context.Pipe(duplex=False)
+            child = context.Process(
+                target=_take_jobs, args=(function, jobs, taken, sending), daemon=True
+            )
+            child.start()
+            sending.close()
+            children.append((child, receiving))
+        results: list[Any] = [None] * len(jobs)
         try:
-            return _collect(executor, futures, bar)
-        except BrokenProcessPool as error:
-            raise CalibrationError(
-                f"a worker process died ({error}); with --workers 1 the work stays in this process"
-            ) from None
-    finally:
-        _INHERITED = None
-
-
-def _collect(executor: Executor, futures: list[Any], bar: tqdm) -> list[Any]:
-    """The futures' results in order; the executor shut down, the jobs not yet started
-    cancelled (on an exception as well)."""
-    try:
-        results = []
-        for future in futures:
-            results.append(future.result())
-            bar.update()
+            for index, value in _take_jobs_here(function, jobs, taken):
+                results[index] = value
+                bar.update()
+        except BaseException:
+            _take_none(taken, len(jobs))
+            raise
+        for _child, receiving in children:
+            try:
+                done, records, error = receiving.recv()
+            except EOFError:
+                raise CalibrationError(WORKER_DIED) from None
+            _emit(records)
+            for index, value in done or ():
+                results[index] = value
+                bar.update()
+            if error is not None:
+                raise error
         return results
     finally:
-        executor.shutdown(wait=True, cancel_futures=True)
+        for child, receiving in children:
+            if child.is_alive():
+                child.kill()
+            child.join()
+            receiving.close()
 
 
-def _in_worker() -> None:
-    """A forked worker's set-up: the signals that end a run are the parent's to handle
-    (it cancels what has not started and waits for the running jobs, milliseconds); the
-    worker ends when the parent shuts the pool down."""
+def _take_jobs_here(
+    function: Callable[[Any], Any], jobs: Sequence[Any], taken: Any
+) -> Iterator[tuple[int, Any]]:
+    """(index, result) of each job taken from the shared counter ``taken``, in turn."""
+    while True:
+        with taken.get_lock():
+            index = taken.value
+            taken.value = index + 1
+        if index >= len(jobs):
+            return
+        yield index, function(jobs[index])
+
+
+def _take_none(taken: Any, count: int) -> None:
+    """No worker takes another of the ``count`` jobs."""
+    with taken.get_lock():
+        taken.value = count
+
+
+def _take_jobs(
+    function: Callable[[Any], Any], jobs: Sequence[Any], taken: Any, sending: Any
+) -> None:
+    """A forked worker of :func:`_in_processes`: jobs until none is left, then its
+    results, its log records and the exception that stopped it (None), on ``sending``."""
+    records = _in_worker()
+    done: list[tuple[int, Any]] = []
+    error: BaseException | None = None
+    try:
+        done.extend(_take_jobs_here(function, jobs, taken))
+    except BaseException as raised:  # noqa: BLE001 - the caller raises it
+        _take_none(taken, len(jobs))
+        error = raised
+    _send(sending, (done, _drained(records), error))
+
+
+def _send(sending: Any, message: tuple[Any, ...]) -> None:
+    """``message`` on ``sending`` (a pipe's end, closed after); where it cannot be
+    pickled, a message with no results and the error saying so."""
+    try:
+        sending.send(message)
+    except Exception as unsent:  # noqa: BLE001 - unpicklable: say so instead
+        sending.send((*(None for _ in message[:-1]), RuntimeError(f"not sent back: {unsent!r}")))
+    sending.close()
+
+
+def _in_worker() -> queue.SimpleQueue[logging.LogRecord]:
+    """A forked worker's set-up; the queue its log records (the package logger's, its
+    level as in the parent) go to, for the parent to emit.
+
+    The signals that end a run are the parent's to handle (it stops the workers); the
+    worker ends when its work is done or the parent ends it. Its records are the
+    parent's to emit, through the parent's handlers (a test's capture, the command
+    line's stderr), and only where its result is used (:class:`Beside`).
+    """
     for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(signum, signal.SIG_IGN)
+    records: queue.SimpleQueue[logging.LogRecord] = queue.SimpleQueue()
+    logger.handlers = [logging.handlers.QueueHandler(records)]
+    logger.propagate = False
+    return records
 
 
-def _inherited_job(index: int) -> Any:
-    """Job ``index`` of the :func:`_in_processes` the worker was forked from."""
-    assert _INHERITED is not None
-    function, jobs = _INHERITED
-    return function(jobs[index])
+def _drained(records: queue.SimpleQueue[logging.LogRecord]) -> list[logging.LogRecord]:
+    """What ``records`` holds, in order."""
+    return [records.get_nowait() for _ in range(records.qsize())]
+
+
+def _emit(records: list[logging.LogRecord] | None) -> None:
+    """A worker's log records, emitted here through the package logger's handlers."""
+    for record in records or ():
+        logger.handle(record)
+
+
+class Beside:
+    """``function()`` computed beside the caller's own work: in a forked process where
+    :func:`can_fork` (started at once), else in the caller when :meth:`result` asks
+    for it. A context manager: leaving it ends a process whose result was not asked for.
+
+    The child inherits ``function`` (a closure included) with the fork, ignores the
+    signals that end a run (the caller's to handle), and sends back its result or its
+    exception, pickled.
+    """
+
+    def __init__(self, function: Callable[[], Any], *, fork: bool = True):
+        """``fork``: False keeps the work in the caller (one worker)."""
+        self._function = function
+        self._process: Any = None
+        self._connection: Any = None
+        if fork and can_fork():
+            context = multiprocessing.get_context("fork")
+            self._connection, sending = context.Pipe(duplex=False)
+            self._process = context.Process(
+                target=_send_result, args=(function, sending), daemon=True
+            )
+            self._process.start()
+            sending.close()
+
+    def result(self) -> Any:
+        """The function's value (its exception raised here).
+
+        Raises:
+            CalibrationError: the process died before it sent its result.
+        """
+        if self._process is None:
+            return self._function()
+        try:
+            value, records, error = self._connection.recv()
+        except EOFError:
+            raise CalibrationError(WORKER_DIED) from None
+        finally:
+            self.close()
+        _emit(records)
+        if error is not None:
+            raise error
+        return value
+
+    def close(self) -> None:
+        """End the process (if still running) and release its pipe."""
+        if self._process is None:
+            return
+        if self._process.is_alive():
+            self._process.kill()
+        self._process.join()
+        self._connection.close()
+        self._process = None
+        self._function = _closed
+
+    def __enter__(self) -> Beside:
+        return self
+
+    def __exit__(self, *exception: object) -> None:
+        self.close()
+
+
+def _closed() -> Any:
+    raise RuntimeError("Beside: the process was closed before its result was asked for")
+
+
+def _send_result(function: Callable[[], Any], sending: Any) -> None:
+    """A :class:`Beside` child: ``function()``, its log records and its exception
+    (None), on ``sending``."""
+    records = _in_worker()
+    value, error = None, None
+    try:
+        value = function()
+    except BaseException as raised:  # noqa: BLE001 - the caller raises it
+        error = raised
+    _send(sending, (value, _drained(records), error))

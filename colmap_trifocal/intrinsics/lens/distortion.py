@@ -33,6 +33,7 @@ convention (the centre of the top-left pixel at (0.5, 0.5)).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -40,6 +41,7 @@ import pycolmap
 from scipy.stats import chi2
 
 from ...common.log import keep_colmap_quiet
+from ...common.parallel import Beside
 from ...database.cameras import CameraInfo
 from ...geometry.tensor_estimation import TripletTensor
 from ..polish.calibrated_tracks import Observed, inlier_pixels, observed_tracks
@@ -274,28 +276,56 @@ def estimate_distortion(lens: DistortionInput) -> LensDistortion | None:
     # Each tensor's tracks and projective cost, the same for every model fitted below.
     observed = observed_tracks(lens.tensors, lens.tracks, lens.start, MAX_TRACKS, lens.workers)
     fits = _Fits(observed, cameras_at(observed, lens.start, intrinsics, lens.workers))
-    adjustment = _adjust(lens, fits, mask, intrinsics, setup.refined, camera_model)
-    if adjustment is None:
-        return None
-    fitted = _fitted(lens, adjustment, intrinsics, significance)
     richer = _RICHER_MODELS.get(camera_model) if camera_model == camera.model else None
-    if richer is None or not fitted.present or fitted.misfit:
-        return fitted
-    return _with_richer_model(lens, fits, mask, intrinsics, setup.refined, fitted, richer)
+    # The richer model's fit does not depend on the stored model's, which decides whether
+    # it is used: it runs beside it, in a forked process where that is safe.
+    richer_fit = (
+        _no_fit
+        if richer is None
+        else partial(_richer_fit, lens, fits, mask, intrinsics, setup.refined, richer)
+    )
+    with Beside(richer_fit, fork=richer is not None and lens.workers != 1) as beside:
+        adjustment = _adjust(lens, fits, mask, intrinsics, setup.refined, camera_model)
+        if adjustment is None:
+            return None
+        fitted = _fitted(lens, adjustment, intrinsics, significance)
+        if richer is None or not fitted.present or fitted.misfit:
+            return fitted
+        wider = beside.result()
+    return fitted if wider is None else _with_richer_model(fitted, wider, richer)
 
 
-def _with_richer_model(
+def _no_fit() -> None:
+    """Nothing fitted beside (:class:`..common.parallel.Beside` of nothing)."""
+    return None
+
+
+def _richer_fit(
     lens: DistortionInput,
     fits: _Fits,
     mask: np.ndarray,
     intrinsics: np.ndarray,
     refined: Refined,
-    fitted: LensDistortion,
     richer: str,
+) -> LensDistortion | None:
+    """``richer``'s fit of the same triplets (its extra terms started at 0), None where
+    its adjustment fails."""
+    if lens.observed is not None:  # the warp's polynomial, its new term at 0
+        terms = len(CameraInfo.blank(richer).distortion)
+        start = np.zeros(terms)
+        start[: len(lens.observed.distortion)] = lens.observed.distortion
+        lens = replace(lens, observed=replace(lens.observed, distortion=start))
+    adjustment = _adjust(lens, fits, mask, intrinsics, refined, richer)
+    return None if adjustment is None else _fitted(lens, adjustment, intrinsics, significance=None)
+
+
+def _with_richer_model(
+    fitted: LensDistortion, wider: LensDistortion, richer: str
 ) -> LensDistortion:
     """``fitted`` (the stored model's fit), or where ``richer``'s extra radial term is
-    determined (a Wald test at ``SIGNIFICANCE``: |k| / std beyond the normal quantile)
-    the intrinsics of ``richer``'s fit with the stored model's distortion.
+    determined in its fit ``wider`` (a Wald test at ``SIGNIFICANCE``: |k| / std beyond
+    the normal quantile) the intrinsics of ``richer``'s fit with the stored model's
+    distortion.
 
     The two fits are two answers to which camera made the tracks; the data reject the
     stored model's, and the richer one may itself miss a term (tangential, k3), so each
@@ -303,15 +333,6 @@ def _with_richer_model(
     better than a held start's (``HELD_FOCAL_STD``) is no answer: the richer fit's own
     std stands.
     """
-    if lens.observed is not None:  # the warp's polynomial, its new term at 0
-        terms = len(CameraInfo.blank(richer).distortion)
-        start = np.zeros(terms)
-        start[: len(lens.observed.distortion)] = lens.observed.distortion
-        lens = replace(lens, observed=replace(lens.observed, distortion=start))
-    adjustment = _adjust(lens, fits, mask, intrinsics, refined, richer)
-    if adjustment is None:
-        return fitted
-    wider = _fitted(lens, adjustment, intrinsics, significance=None)
     extra, extra_std = wider.distortion[-1], wider.distortion_std[-1]
     if wider.misfit or not (np.isfinite(extra_std) and extra_std > 0):
         return fitted

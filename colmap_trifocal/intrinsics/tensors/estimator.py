@@ -186,20 +186,24 @@ class TensorEstimator:
         missing = [p for p in positions if (key, p, second_start) not in self._cache]
         K0 = intrinsics_matrix(start)
         jobs: list[Callable[[], TripletFit | None]] = []
+        starts = 0
         for p in missing:
-            self.starts_used += self._starts(key, p, second_start=second_start)
+            starts += self._starts(key, p, second_start=second_start)
             first = self._cache.get((key, p, False)) if second_start else None
             if first is not None:
                 jobs.append(first.with_second_start)
             else:
                 jobs.append(partial(self._fit, p, K0, second_start=second_start))
+        self.starts_used += starts
         fits = map_jobs(
             _call,
             jobs,
             self.options.workers,
             f"camera {self.camera_id}: tensors",
             progress=self.options.progress,
-            processes=True,
+            # A worker process pays for its fork (milliseconds): not for a lone start, nor
+            # for second starts whose first fits deferred nothing.
+            processes=starts > 1,
         )
         for p, fit in zip(missing, fits, strict=True):
             self._cache[(key, p, second_start)] = fit
