@@ -132,9 +132,11 @@ def polish(given: PolishInput) -> Polished:
         return _polish_solved(given)
     # Both adjustments below start from the same tracks and projective costs. The polish
     # of what the solve estimated is the answer only where the release fails: it runs
-    # beside it, in a forked process where that is safe.
+    # beside it, in a forked process where that is safe (and where it adjusts anything).
     observed = observed_tracks(given.tensors, given.tracks, given.start, workers=given.workers)
-    with Beside(partial(_polish_solved, given, observed), fork=given.workers != 1) as solved:
+    adjusts = pycolmap_camera_setup(given.fallback.free_parameters) is not None
+    beside = partial(_polish_solved, given, observed)
+    with Beside(beside, fork=adjusts and given.workers != 1) as solved:
         released, why_held = release_held(given, observed, wider)
         if released is not None:
             return released

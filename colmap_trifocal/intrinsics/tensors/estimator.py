@@ -40,6 +40,13 @@ from ..solve.theta import intrinsics_to_theta
 #: Refinement starts per triplet over one camera's calibration: a restart, another
 #: start or second starts are run only while they fit (the first start always runs).
 MAX_STARTS_PER_TRIPLET = 8
+#: Refinement starts from which one call's fits go to forked worker processes (threads
+#: below). A start is 6–17 ms of GIL-bound numpy on the real scenes; a fork costs 10–30
+#: ms with the copy-on-write faults it leaves the caller (more in a larger process): from
+#: 8 starts on, the half another core takes saves more than that. On the ring (calls of
+#: 6, 3 and 1 starts) processes cost 0.03 s a run in a long-lived process; on entry-P10's
+#: and EuRoC's 14- and 20-start calls they save 0.1–0.3 s (docs/accuracy.md).
+MIN_STARTS_IN_PROCESSES = 8
 
 
 @dataclass
@@ -201,9 +208,7 @@ class TensorEstimator:
             self.options.workers,
             f"camera {self.camera_id}: tensors",
             progress=self.options.progress,
-            # A worker process pays for its fork (milliseconds): not for a lone start, nor
-            # for second starts whose first fits deferred nothing.
-            processes=starts > 1,
+            processes=starts >= MIN_STARTS_IN_PROCESSES,
         )
         for p, fit in zip(missing, fits, strict=True):
             self._cache[(key, p, second_start)] = fit
