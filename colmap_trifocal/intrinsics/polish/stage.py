@@ -62,13 +62,11 @@ Intrinsics in pixels; std relative to the focal length (θ units) unless named.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import partial
 from typing import Any
 
 import numpy as np
 
 from ...common.log import logger
-from ...common.parallel import Beside
 from ...geometry.tensor_estimation import TripletTensor
 from ..results import PARAMETER_NAMES
 from ..solve.fallback import FallbackSolution
@@ -130,17 +128,12 @@ def polish(given: PolishInput) -> Polished:
     wider = released_parameters(given.fallback.free_parameters)
     if wider is None:
         return _polish_solved(given)
-    # Both adjustments below start from the same tracks and projective costs. The polish
-    # of what the solve estimated is the answer only where the release fails: it runs
-    # beside it, in a forked process where that is safe (and where it adjusts anything).
+    # Both adjustments below start from the same tracks and projective costs.
     observed = observed_tracks(given.tensors, given.tracks, given.start, workers=given.workers)
-    adjusts = pycolmap_camera_setup(given.fallback.free_parameters) is not None
-    beside = partial(_polish_solved, given, observed)
-    with Beside(beside, fork=adjusts and given.workers != 1) as solved:
-        released, why_held = release_held(given, observed, wider)
-        if released is not None:
-            return released
-        polished: Polished = solved.result()
+    released, why_held = release_held(given, observed, wider)
+    if released is not None:
+        return released
+    polished = _polish_solved(given, observed)
     if polished.summary is None:
         # Nothing else to adjust (the solve held every value): the release's is the report.
         polished.summary = {
