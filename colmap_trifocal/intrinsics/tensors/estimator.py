@@ -11,7 +11,8 @@ moves to a new start K, the tensors that agree with K are carried over exactly
 others are estimated again from K.
 
 Every triplet keeps its own seed, so the result does not depend on the order or the
-number of workers. The fits run in forked worker processes where that is safe
+number of workers. A call of at least ``MIN_STARTS_IN_PROCESSES`` starts runs its fits
+in the calling thread and forked worker processes where that is safe
 (:func:`..common.parallel.map_jobs`): each is Python-bound numpy that threads cannot
 run side by side. The work is counted in refinement starts and bounded by
 ``MAX_STARTS_PER_TRIPLET`` per triplet.
