@@ -13,6 +13,7 @@ import subprocess
 import sys
 import textwrap
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -255,3 +256,42 @@ def test_beside_not_asked_for_is_ended_and_says_nothing() -> None:
     assert out["alive"] is False
     assert out["seen"] == []
     assert out["same"] is True
+
+
+@pytest.mark.real_data
+def test_lens_fits_side_by_side_give_the_same_bits(
+    real_scene_database: Callable[[str, str], Path],
+) -> None:
+    """EuRoC's real lens behind COLMAP's default camera: its ``RADIAL`` fit runs in a
+    forked process beside the ``SIMPLE_RADIAL`` one (``parallel.Beside``) and gives the
+    result of the two fits one after the other (1 worker), bit for bit."""
+    run = _python(
+        """
+        import json, sys
+        from colmap_trifocal import CalibrationOptions, calibrate_database
+        from colmap_trifocal.common import parallel
+        forked = []
+        init = parallel.Beside.__init__
+        def counted(self, function, **kwargs):
+            init(self, function, **kwargs)
+            forked.append(self._process is not None)
+        parallel.Beside.__init__ = counted
+        out = {}
+        for workers in (2, 1):
+            (result,) = calibrate_database(sys.argv[1], CalibrationOptions(workers=workers))
+            out[workers] = {
+                "intrinsics": result.intrinsics.tobytes().hex(),
+                "std": result.std,
+                "richer": (result.lens_distortion or {}).get("richer_model"),
+                "forked": sum(forked),
+            }
+        print(json.dumps(out))
+        """,
+        str(real_scene_database("euroc-V1_01", "default")),
+    )
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    assert out["2"]["richer"] == "RADIAL"  # the second fit's result was used
+    assert out["2"]["forked"] >= 1 and out["1"]["forked"] == out["2"]["forked"]
+    for key in ("intrinsics", "std"):
+        assert out["1"][key] == out["2"][key], key
