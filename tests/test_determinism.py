@@ -32,10 +32,10 @@ def database(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, np.ndarray
     return path, truth
 
 
-def _cli_json(database: Path, out: Path, seed: int) -> list[dict]:
+def _cli_json(database: Path, out: Path, seed: int, *flags: str) -> list[dict]:
     result = subprocess.run(
         [sys.executable, "-m", "colmap_trifocal.cli", "calibrate", str(database)]
-        + ["--seed", str(seed), "--json", str(out)],
+        + ["--seed", str(seed), "--json", str(out), *flags],
         capture_output=True,
         text=True,
         timeout=300,
@@ -57,6 +57,16 @@ def test_cli_same_seed_same_json(database: tuple[Path, np.ndarray], tmp_path: Pa
     assert first == second  # floats parsed from JSON: equal means bit for bit
     estimate = np.array([first[0][name] for name in NAMES])
     assert np.mean(np.abs(estimate / truth - 1)) < 0.01
+
+
+def test_cli_workers_flag_changes_no_result(
+    database: tuple[Path, np.ndarray], tmp_path: Path
+) -> None:
+    """``calibrate --workers 1`` (all in one process) and ``--workers 2`` (the tensors
+    in a forked worker beside the main thread) write the same JSON (times aside)."""
+    path, _ = database
+    one = _cli_json(path, tmp_path / "one.json", 3, "--workers", "1")
+    assert one == _cli_json(path, tmp_path / "two.json", 3, "--workers", "2")
 
 
 @pytest.mark.parametrize(

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from colmap_trifocal.common.parallel import can_fork, map_jobs
+from colmap_trifocal.common.parallel import WORKER_DIED, can_fork, map_jobs
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from outlier_stress import make_outlier_database  # noqa: E402
@@ -41,7 +41,7 @@ def test_forked_workers_run_closures_in_order_in_other_processes() -> None:
     run = _python(
         """
         import json, os, time
-        from colmap_trifocal.common.parallel import can_fork, map_jobs
+        from colmap_trifocal.common.parallel import WORKER_DIED, can_fork, map_jobs
         offset = 1000
         def job(value):
             time.sleep(0.05)  # long enough for every worker to take some
@@ -73,33 +73,20 @@ def test_beside_another_thread_the_jobs_run_in_threads() -> None:
     assert seen == [False, [os.getpid()] * 3]
 
 
-def test_a_job_error_reaches_the_caller_from_a_worker() -> None:
-    """An exception raised in a forked worker is raised in the caller, type and message."""
+@pytest.mark.parametrize(
+    ("in_a_worker", "caught", "expected"),
+    [
+        ('raise ValueError("bad job in a worker")', "ValueError", "bad job in a worker"),
+        ("os.kill(os.getpid(), signal.SIGKILL)", "CalibrationError", WORKER_DIED),
+    ],
+    ids=["error", "killed"],
+)
+def test_a_worker_failure_reaches_the_caller(in_a_worker: str, caught: str, expected: str) -> None:
+    """An exception raised in a forked worker is raised in the caller, type and message;
+    a worker killed mid-job (out of memory, say) ends the map with CalibrationError, which
+    names the way to keep the work in one process, not with a hang."""
     run = _python(
-        """
-        import os, time
-        from colmap_trifocal.common.parallel import map_jobs
-        parent = os.getpid()
-        def job(value):
-            time.sleep(0.05)
-            if os.getpid() != parent:
-                raise ValueError("bad job in a worker")
-            return value
-        try:
-            map_jobs(job, list(range(6)), 2, processes=True)
-        except ValueError as error:
-            print("caught:", error)
-        """
-    )
-    assert run.returncode == 0, run.stderr
-    assert run.stdout.strip() == "caught: bad job in a worker"
-
-
-def test_a_dead_worker_is_a_calibration_error() -> None:
-    """A worker killed mid-job (out of memory, say) ends the map with CalibrationError,
-    which names the way to keep the work in one process, not with a hang."""
-    run = _python(
-        """
+        f"""
         import os, signal, time
         from colmap_trifocal import CalibrationError
         from colmap_trifocal.common.parallel import map_jobs
@@ -107,17 +94,16 @@ def test_a_dead_worker_is_a_calibration_error() -> None:
         def job(value):
             time.sleep(0.05)
             if os.getpid() != parent:
-                os.kill(os.getpid(), signal.SIGKILL)
+                {in_a_worker}
             return value
         try:
             map_jobs(job, list(range(6)), 2, processes=True)
-        except CalibrationError as error:
+        except {caught} as error:
             print("caught:", error)
         """
     )
     assert run.returncode == 0, run.stderr
-    assert run.stdout.startswith("caught: a worker process died")
-    assert "--workers 1" in run.stdout
+    assert run.stdout.strip() == f"caught: {expected}"
 
 
 @pytest.fixture(scope="module")
@@ -163,34 +149,9 @@ def test_tensors_in_worker_processes_give_the_same_bits(database: Path) -> None:
         assert out["1"][key] == out["2"][key], key
 
 
-def test_cli_workers_flag_changes_no_result(database: Path, tmp_path: Path) -> None:
-    """``calibrate --workers 1`` and ``--workers 2`` write the same JSON (times aside)."""
-    written = []
-    for workers in (1, 2):
-        out = tmp_path / f"{workers}.json"
-        run = subprocess.run(
-            [sys.executable, "-m", "colmap_trifocal.cli", "calibrate", str(database)]
-            + ["--seed", "3", "--workers", str(workers), "--json", str(out)],
-            capture_output=True,
-            text=True,
-            timeout=300,
-        )
-        assert run.returncode == 0, run.stderr
-        entries = json.loads(out.read_text())
-        for entry in entries:
-            entry.pop("seconds")
-            entry.pop("stage_seconds")
-        written.append(entries)
-    assert written[0] == written[1]
-
-
-def test_beside_runs_in_another_process_and_its_log_comes_back() -> None:
-    """``Beside``: the function runs in a forked process while the caller works; its
-    value and its log records (emitted through the caller's handlers) come back when
-    asked for; its exception is raised in the caller."""
-    run = _python(
-        """
-        import json, logging, os
+#: A script's start: ``seen`` keeps the messages of the package logger's records (INFO).
+_KEEP_LOG = """
+        import json, logging, os, time
         from colmap_trifocal.common.log import logger
         from colmap_trifocal.common.parallel import Beside
         seen = []
@@ -199,6 +160,16 @@ def test_beside_runs_in_another_process_and_its_log_comes_back() -> None:
                 seen.append(record.getMessage())
         logger.addHandler(Keep())
         logger.setLevel(logging.INFO)
+"""
+
+
+def test_beside_runs_in_another_process_and_its_log_comes_back() -> None:
+    """``Beside``: the function runs in a forked process while the caller works; its
+    value and its log records (emitted through the caller's handlers) come back when
+    asked for; its exception is raised in the caller."""
+    run = _python(
+        _KEEP_LOG
+        + """
         def work():
             logger.info("worked in %d", os.getpid())
             return os.getpid()
@@ -226,16 +197,8 @@ def test_beside_not_asked_for_is_ended_and_says_nothing() -> None:
     that would sleep a minute), and its log records are not emitted; ``fork=False``
     runs the function in the caller, when asked for."""
     run = _python(
-        """
-        import json, logging, os, time
-        from colmap_trifocal.common.log import logger
-        from colmap_trifocal.common.parallel import Beside
-        seen = []
-        class Keep(logging.Handler):
-            def emit(self, record):
-                seen.append(record.getMessage())
-        logger.addHandler(Keep())
-        logger.setLevel(logging.INFO)
+        _KEEP_LOG
+        + """
         def slow():
             logger.info("slow started")
             time.sleep(60)
