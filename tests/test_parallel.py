@@ -41,12 +41,13 @@ def test_forked_workers_run_closures_in_order_in_other_processes() -> None:
     run = _python(
         """
         import json, os, time
-        from colmap_trifocal.common.parallel import WORKER_DIED, can_fork, map_jobs
-        offset = 1000
-        def job(value):
-            time.sleep(0.05)  # long enough for every worker to take some
-            return value + offset, os.getpid()
-        results = map_jobs(job, list(range(12)), 3, processes=True)
+        from colmap_trifocal.common.parallel import can_fork, map_jobs
+        def jobs_adding(offset):
+            def job(value):  # a local function: pickle cannot send it
+                time.sleep(0.05)  # long enough for every worker to take some
+                return value + offset, os.getpid()
+            return job
+        results = map_jobs(jobs_adding(1000), list(range(12)), 3, processes=True)
         print(json.dumps({"can_fork": can_fork(), "parent": os.getpid(), "results": results}))
         """
     )
