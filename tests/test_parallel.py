@@ -176,10 +176,10 @@ def test_beside_runs_in_another_process_and_its_log_comes_back() -> None:
             return os.getpid()
         def fail():
             raise KeyError("beside")
-        with Beside(work) as beside:
+        with Beside(work, workers=2) as beside:
             pid = beside.result()
         try:
-            with Beside(fail) as beside:
+            with Beside(fail, workers=2) as beside:
                 beside.result()
         except KeyError as error:
             caught = str(error)
@@ -195,7 +195,7 @@ def test_beside_runs_in_another_process_and_its_log_comes_back() -> None:
 
 def test_beside_not_asked_for_is_ended_and_says_nothing() -> None:
     """A ``Beside`` whose result is not asked for is ended when its block ends (here one
-    that would sleep a minute), and its log records are not emitted; ``fork=False``
+    that would sleep a minute), and its log records are not emitted; one worker
     runs the function in the caller, when asked for."""
     run = _python(
         _KEEP_LOG
@@ -204,11 +204,11 @@ def test_beside_not_asked_for_is_ended_and_says_nothing() -> None:
             logger.info("slow started")
             time.sleep(60)
         start = time.monotonic()
-        with Beside(slow) as beside:
+        with Beside(slow, workers=2) as beside:
             process = beside._process
             time.sleep(0.2)
         ended = time.monotonic() - start
-        with Beside(os.getpid, fork=False) as beside:
+        with Beside(os.getpid, workers=1) as beside:
             pid = beside.result()
         print(json.dumps({"ended": ended, "alive": process.is_alive(), "seen": seen,
                           "same": pid == os.getpid()}))

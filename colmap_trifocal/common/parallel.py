@@ -51,6 +51,11 @@ def default_workers() -> int:
     return max(1, min(cores, MAX_WORKERS))
 
 
+def worker_count(workers: int | None) -> int:
+    """The workers asked for as a count: None is one per core (:func:`default_workers`)."""
+    return default_workers() if workers is None else max(1, workers)
+
+
 @contextmanager
 def single_threaded_libraries() -> Iterator[None]:
     """BLAS, OpenMP and OpenCV each limited to one thread inside the block.
@@ -92,7 +97,7 @@ def map_jobs(
     Raises:
         CalibrationError: a worker process died (killed, or out of memory).
     """
-    workers = default_workers() if workers is None else max(1, workers)
+    workers = worker_count(workers)
     bar = tqdm(total=len(jobs), desc=description, disable=not progress)
     try:
         if workers == 1 or len(jobs) <= 1:
@@ -261,20 +266,20 @@ def _emit(records: list[logging.LogRecord] | None) -> None:
 
 class Beside:
     """``function()`` computed beside the caller's own work: in a forked process where
-    :func:`can_fork` (started at once), else in the caller when :meth:`result` asks
-    for it. A context manager: leaving it ends a process whose result was not asked for.
+    there are ``workers`` (None: one per core) beside the caller and :func:`can_fork`
+    (started at once), else in the caller when :meth:`result` asks for it. A context
+    manager: leaving it ends a process whose result was not asked for.
 
     The child inherits ``function`` (a closure included) with the fork, ignores the
     signals that end a run (the caller's to handle), and sends back its result or its
     exception, pickled.
     """
 
-    def __init__(self, function: Callable[[], Any], *, fork: bool = True):
-        """``fork``: False keeps the work in the caller (one worker)."""
+    def __init__(self, function: Callable[[], Any], *, workers: int | None = None):
         self._function = function
         self._process: Any = None
         self._connection: Any = None
-        if fork and can_fork():
+        if worker_count(workers) > 1 and can_fork():
             context = multiprocessing.get_context("fork")
             self._connection, sending = context.Pipe(duplex=False)
             self._process = context.Process(

@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from ..common.errors import CalibrationError
 from ..common.extras import missing_extra
-from ..common.parallel import default_workers
+from ..common.parallel import worker_count
 
 #: How long a Dask client waits for the scheduler before the run is refused.
 DASK_CONNECT_TIMEOUT = "10s"
@@ -76,7 +76,7 @@ def completed_tasks(
         if dask_address is not None:
             done = _on_dask(function, tasks, dask_address, level)
         else:
-            workers = default_workers() if workers is None else max(1, workers)
+            workers = worker_count(workers)
             if workers == 1 or len(tasks) <= 1:
                 done = ((i, function(task)) for i, task in enumerate(tasks))
             else:

@@ -284,7 +284,7 @@ def estimate_distortion(lens: DistortionInput) -> LensDistortion | None:
         if richer is None
         else partial(_richer_fit, lens, fits, mask, intrinsics, setup.refined, richer)
     )
-    with Beside(richer_fit, fork=richer is not None and lens.workers != 1) as beside:
+    with Beside(richer_fit, workers=1 if richer is None else lens.workers) as beside:
         adjustment = _adjust(lens, fits, mask, intrinsics, setup.refined, camera_model)
         if adjustment is None:
             return None
