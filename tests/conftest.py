@@ -331,7 +331,8 @@ def real_scene_database(database_cache: DatabaseCache) -> Callable[[str, str], P
         scene = SCENES_BY_NAME[name]
         data = scene.read(shared_dataset(""))
         names = scene.image_names(data)
-        default = database_cache.get(data.image_dir, names, **scene.build_options())
+        images = scene.image_folder(shared_dataset(""), database_cache.root / "lens-images")
+        default = database_cache.get(images, names, **scene.build_options())
         if kind == "default":
             return default
         assert kind == "pinhole", kind

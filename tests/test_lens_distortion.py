@@ -14,14 +14,14 @@ import numpy as np
 import pycolmap
 import pytest
 from conftest import handheld_lens_contents, shared_dataset, strecha_root
-from real_scenes import SCENES_BY_NAME, prior_5
+from real_scenes import SCENES_BY_NAME, lens_maps, prior_5
 
 from colmap_trifocal import CalibrationOptions, calibrate_contents, calibrate_database
 from colmap_trifocal.database.cameras import CameraInfo
 from colmap_trifocal.database.features import build_database
 from colmap_trifocal.datasets.strecha import ground_truth_intrinsics, scene_images
 from colmap_trifocal.intrinsics.api import write_calibrations
-from colmap_trifocal.intrinsics.assess.assessment import at_focal_ratio
+from colmap_trifocal.intrinsics.assess.assessment import STRONG_BEND, at_focal_ratio
 from colmap_trifocal.intrinsics.lens import distortion
 from colmap_trifocal.synthetic.database import CAMERA_ID, scene_contents, write_database
 from colmap_trifocal.synthetic.facade import facade_scene
@@ -300,20 +300,13 @@ def test_a_lens_the_model_cannot_hold_ends_no_further_than_its_start() -> None:
 
 def _through_a_lens(folder: Path, out: Path, truth: np.ndarray, distortion: list[float]) -> Path:
     """The scene's images at half size as seen through an OPENCV lens (K = ``truth``,
-    k1, k2 = ``distortion``), written to ``out``: each output pixel samples the image
-    where pycolmap's undistortion of it lands (cv2.remap)."""
+    k1, k2 = ``distortion``), written to ``out`` (:func:`real_scenes.lens_maps`)."""
     width, height = 1536, 1024
-    lens = CameraInfo(1, "OPENCV", width, height, [*truth, *distortion, 0.0, 0.0]).to_pycolmap()
-    u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
-    pixels = np.column_stack([u.ravel(), v.ravel()])
-    rays = np.asarray(lens.cam_from_img(pixels))
-    source = rays * truth[:2] + truth[2:] - 0.5  # COLMAP's pixel centres to OpenCV's
-    map_x = source[:, 0].reshape(height, width).astype(np.float32)
-    map_y = source[:, 1].reshape(height, width).astype(np.float32)
+    maps = lens_maps(width, height, truth, distortion)
     out.mkdir()
     for name in scene_images(folder):
         image = cv2.resize(cv2.imread(str(folder / "images" / name)), (width, height))
-        seen = cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        seen = cv2.remap(image, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         cv2.imwrite(str(out / f"{Path(name).stem}.png"), seen)
     return out
 
@@ -413,3 +406,56 @@ def test_distortion_at_a_held_focal_length_bends_the_pixels_as_the_fit_did() -> 
             mapped.append(camera.img_from_cam(rays))
         np.testing.assert_allclose(mapped[0], mapped[1], rtol=0, atol=1e-9)
     assert held.distortion[0] != fit.distortion[0]
+
+
+@pytest.mark.parametrize(
+    ("model", "terms", "intrinsics", "size", "bend"),
+    [
+        # k r² at the farthest corner, r its undistorted radius (r (1 + k r²) = r_d).
+        ("SIMPLE_RADIAL", [-0.06], [2760.0, 2760.0, 1520.0, 1006.0], (3072, 2048), None),
+        # EuRoC's RADIAL fit: about a quarter of the radius.
+        ("RADIAL", [-0.28, 0.074], [459.0, 459.0, 367.0, 248.0], (752, 480), (0.2, 0.3)),
+        # EuRoC's SIMPLE_RADIAL k: the corner lies beyond the polynomial's fold.
+        ("SIMPLE_RADIAL", [-0.177], [459.0, 459.0, 367.0, 248.0], (752, 480), (np.inf, np.inf)),
+    ],
+)
+def test_a_lens_bends_the_farthest_corner_by_its_radial_factor(
+    model: str,
+    terms: list[float],
+    intrinsics: list[float],
+    size: tuple[int, int],
+    bend: tuple[float, float] | None,
+) -> None:
+    """How strong a fitted lens is: the farthest corner's move, relative to its
+    undistorted radius. Only a strong one (EuRoC's) holds the lens route's estimates
+    near the start (``assessment.STRONG_BEND``); a phone's is a few percent."""
+    lens = distortion_fit(model, intrinsics, terms)
+    measured = lens.corner_bend(*size)
+    if bend is None:
+        (k,) = terms
+        corner = np.array(size, float) - intrinsics[2:]  # farthest from (1520, 1006)
+        r_d = float(np.linalg.norm(corner / intrinsics[:2]))
+        r_u = r_d
+        for _ in range(50):
+            r_u = r_d / (1.0 + k * r_u**2)
+        assert measured == pytest.approx(abs(k) * r_u**2, rel=1e-6)
+        assert measured < STRONG_BEND
+    else:
+        assert bend[0] <= measured <= bend[1]
+        assert measured >= STRONG_BEND
+
+
+def distortion_fit(
+    model: str, intrinsics: list[float], values: list[float]
+) -> distortion.LensDistortion:
+    """A fitted lens of ``model`` at ``intrinsics`` with distortion ``values``."""
+    return distortion.LensDistortion(
+        model,
+        np.array(intrinsics),
+        np.zeros(4),
+        np.array(values),
+        np.zeros(len(values)),
+        statistic=100.0,
+        threshold=3.8,
+        agreeing=20,
+    )
