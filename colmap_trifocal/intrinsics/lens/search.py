@@ -76,17 +76,18 @@ PAIR_THRESHOLD_PX = 1.0
 TRUNCATION_PX = 2.0
 #: Distorted radii the polynomial is fitted at (evenly spaced out to the farthest track).
 FIT_SAMPLES = 64
-#: Where the best warp of the grids is within one step of none (a mild lens), each
-#: family's step is halved around its best parameter while a step still moves the
-#: farthest image corner by more than this many pixels (:func:`_finer_minima`). The
-#: epipolar cost's basin is a few tens of pixels of corner displacement wide, whatever
-#: the image size, while the grids' steps are fixed in units of the image: 22 px (κ)
-#: and 45 px (λ) at a 752×480 drone frame, 92 and 185 px at 3072×2048. A phone-like
-#: lens (k1 −0.06 at 3072×2048: κ −0.027, the corners 50 px in) lies between the grid
-#: point 0 and its neighbours, which cost as much as no warp; a parabola through the
-#: three misses it (docs/lenses.md). A strong lens is far from 0 in units of the
-#: step: the grid's parabola starts the tensors near enough, and the lens stage
-#: adjusts the lens from the raw tracks.
+#: The epipolar cost's basin is a few tens of pixels of corner displacement wide, whatever
+#: the image size, while the grids' steps are fixed in units of the image: they move the
+#: farthest corner by 22 px (κ) and 45 px (λ) at a 752×480 drone frame, but by 92 and
+#: 185 px at 3072×2048, where a lens between two grid points misses both basins: a
+#: phone-like lens (k1 −0.06: κ −0.027, the corners 50 px in) lay between the grid
+#: point 0 and its neighbours, which cost as much as no warp, and the parabola through
+#: the three missed it (docs/lenses.md). Where a family's step moves the corner by more
+#: than ``COARSE_STEP_PX``, it is halved around the family's best while it still moves
+#: it by more than ``FINE_STEP_PX`` (:func:`_finer_minima`). Halving every grid (EuRoC's
+#: too) took EuRoC's lens, which one term does not hold, 0.1–0.4 % further.
+COARSE_STEP_PX = 50.0
+#: ... and the corner displacement (pixels) a step is halved down to.
 FINE_STEP_PX = 16.0
 
 
@@ -246,13 +247,15 @@ def search_lens(
         family: _refined_minimum(pairs, centre, scale, family, grid, costs[family])
         for family, grid in grids.items()
     }
-    best = min(refined, key=lambda name: refined[name][1])
-    if abs(refined[best][0]) < grids[best][1] - grids[best][0]:
-        finer = _finer_minima(pairs, centre, scale, grids, costs, workers)
-        refined = {
-            family: min(refined[family], finer[family], key=lambda found: found[1])
-            for family in grids
-        }
+    coarse = {
+        family: grid
+        for family, grid in grids.items()
+        if (grid[1] - grid[0]) * scale > COARSE_STEP_PX
+    }
+    if coarse:
+        finer = _finer_minima(pairs, centre, scale, coarse, costs, workers)
+        for family in coarse:
+            refined[family] = min(refined[family], finer[family], key=lambda found: found[1])
     family, other = sorted(refined, key=lambda name: refined[name][1])
     (parameter, cost), grid = refined[family], grids[family]
     alternative = None
@@ -322,10 +325,10 @@ def _finer_minima(
     costs: dict[str, np.ndarray],
     workers: int | None,
 ) -> dict[str, tuple[float, float]]:
-    """Each family's best parameter and its epipolar cost, by halving its grid step
-    around its grid minimum (within the grid) while a step moves the farthest image
+    """Each family of ``grids``' best parameter and its epipolar cost, by halving its grid
+    step around its grid minimum (within the grid) while a step moves the farthest image
     corner (``scale`` pixels from the centre) by more than ``FINE_STEP_PX``; the last
-    three points' parabola gives the parameter. Both families' points of a level are
+    three points' parabola gives the parameter. The families' points of a level are
     evaluated together, over ``workers`` threads (None: one per core)."""
     evaluated = {
         family: dict(zip(map(float, grid), map(float, costs[family]), strict=True))
