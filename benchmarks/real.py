@@ -2,10 +2,11 @@
 
 For each real scene of ``../shared/datasets`` (``real_scenes.SCENES``: fountain-P11,
 Herz-Jesus-P8, entry-P10, EuRoC V1_01 cam0, NeRF lego, the Middlebury temple ring, the
-KITTI drive, and fountain-P11 and entry-P10 as phone-like lenses would have taken them,
-k1 −0.06 and +0.03, made once in ``--out``) and each of its two databases (``default``: COLMAP's default
-extraction, one SIMPLE_RADIAL camera per image; ``pinhole``: the same matches on one
-PINHOLE camera at COLMAP's guess), built once and cached in ``--out``:
+KITTI drive, and fountain-P11 and entry-P10 as phone-like lenses would have taken
+them, k1 −0.06 and +0.03, made once in ``--out``) and each of its two databases
+(``default``: COLMAP's default extraction, one SIMPLE_RADIAL camera per image;
+``pinhole``: the same matches on one PINHOLE camera at COLMAP's guess), built once and
+cached in ``--out``:
 
 * ``calibrate_database`` (msac-opt, every core) from the stored camera (``guess``:
   COLMAP's f = 1.2 · max(w, h), centred) and from ±5 % priors, each with seeds

@@ -75,6 +75,9 @@ STATISTICAL = frozenset({"z", "coverage"})
 #: truth than its start), "z" (an error beyond MAX_Z std), "coverage".
 KNOWN_FAILURES: dict[tuple[str, str], set[str]] = {
     ("kitti-seq2", "pinhole"): {"coverage"},
+    # Through the lens behind a PINHOLE camera the facade's cx comes out 12-23 px short in
+    # every run (0.4-0.75 %); the seed-4 prior's std says 4.6 px (|z| 5.0).
+    ("entry-P10-lens", "pinhole"): {"z"},
 }
 
 
