@@ -43,10 +43,11 @@ def _search(scene, seed: int = 0):
 
 
 def _search_contents(contents, seed: int = 0):
-    """The lens search over the first triplets of a database's one camera, from it."""
+    """The lens search over the first triplets of a database's one camera, from COLMAP's
+    default camera (f = 1.2 · max(w, h), centred)."""
     ((camera_id, camera),) = contents.cameras.items()
     width, height = camera.width, camera.height
-    options = CalibrationOptions(seed=seed)
+    options = CalibrationOptions(no_prior=True, seed=seed)
     images = sorted(image for image, cam in contents.image_camera.items() if cam == camera_id)
     data = camera_input(contents, camera, images, options.start_options)
     tracks = select_camera_triplets(data, images, options.track_options, options.work_options)
