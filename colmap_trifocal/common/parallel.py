@@ -151,18 +151,11 @@ def _in_processes(
     (sent as they came, they would fill the pipe while the caller is busy with a job).
     An exception in any job stops the others from taking more, and is raised here.
     """
-    context = multiprocessing.get_context("fork")
-    taken = context.Value("q", 0)
+    taken = multiprocessing.get_context("fork").Value("q", 0)
     children = []
     try:
         for _ in range(workers - 1):
-            receiving, sending = context.Pipe(duplex=False)
-            child = context.Process(
-                target=_take_jobs, args=(function, jobs, taken, sending), daemon=True
-            )
-            child.start()
-            sending.close()
-            children.append((child, receiving))
+            children.append(_forked(_take_jobs, function, jobs, taken))
         results: list[Any] = [None] * len(jobs)
         try:
             for index, value in _take_jobs_here(function, jobs, taken):
@@ -185,10 +178,26 @@ def _in_processes(
         return results
     finally:
         for child, receiving in children:
-            if child.is_alive():
-                child.kill()
-            child.join()
-            receiving.close()
+            _ended(child, receiving)
+
+
+def _forked(target: Callable[..., None], *args: Any) -> tuple[Any, Any]:
+    """A started daemonic child forked to run ``target(*args, sending)``, and the end of
+    the pipe it sends its one message on."""
+    context = multiprocessing.get_context("fork")
+    receiving, sending = context.Pipe(duplex=False)
+    child = context.Process(target=target, args=(*args, sending), daemon=True)
+    child.start()
+    sending.close()
+    return child, receiving
+
+
+def _ended(child: Any, receiving: Any) -> None:
+    """``child`` killed if still running, joined, and its pipe's end closed."""
+    if child.is_alive():
+        child.kill()
+    child.join()
+    receiving.close()
 
 
 def _take_jobs_here(
@@ -280,13 +289,7 @@ class Beside:
         self._process: Any = None
         self._connection: Any = None
         if worker_count(workers) > 1 and can_fork():
-            context = multiprocessing.get_context("fork")
-            self._connection, sending = context.Pipe(duplex=False)
-            self._process = context.Process(
-                target=_send_result, args=(function, sending), daemon=True
-            )
-            self._process.start()
-            sending.close()
+            self._process, self._connection = _forked(_send_result, function)
 
     def result(self) -> Any:
         """The function's value (its exception raised here).
@@ -311,10 +314,7 @@ class Beside:
         """End the process (if still running) and release its pipe."""
         if self._process is None:
             return
-        if self._process.is_alive():
-            self._process.kill()
-        self._process.join()
-        self._connection.close()
+        _ended(self._process, self._connection)
         self._process = None
         self._function = _closed
 
