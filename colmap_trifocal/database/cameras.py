@@ -17,6 +17,7 @@ Conventions
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache
 
@@ -161,7 +162,29 @@ class CameraInfo:
         count = len(pycolmap.Camera.create_from_model_name(camera_id, model, 1.0, 1, 1).params)
         return cls(camera_id, model, 1, 1, np.zeros(count))
 
-    def with_distortion(self, distortion: list[float] | np.ndarray) -> CameraInfo:
+    @classmethod
+    def of_model(
+        cls,
+        camera_id: int,
+        model: str,
+        width: int,
+        height: int,
+        intrinsics: Sequence[float] | np.ndarray,
+        distortion: Sequence[float] | np.ndarray | None = None,
+        *,
+        has_prior_focal_length: bool = False,
+    ) -> CameraInfo:
+        """A ``width`` x ``height`` camera of ``model`` at ``intrinsics`` (fx, fy, cx, cy;
+        pixels, :meth:`with_intrinsics`) with ``distortion`` (COLMAP's order; default 0)."""
+        camera = cls(
+            camera_id, model, width, height, cls.blank(model).params, has_prior_focal_length
+        )
+        if distortion is not None:
+            camera = camera.with_distortion(distortion)
+        fx, fy, cx, cy = map(float, intrinsics)
+        return camera.with_intrinsics(fx, fy, cx, cy)
+
+    def with_distortion(self, distortion: Sequence[float] | np.ndarray) -> CameraInfo:
         """A copy with the model's extra (distortion) parameters replaced, COLMAP's order."""
         params = self.params.copy()
         extra = list(_layout(self.model).extra)

@@ -233,13 +233,16 @@ class CameraCalibration:
         # One group, one model (merged cameras share it): all undistorted, or none changes.
         if model is None or params is None or not all(c.is_undistorted for c in self.group_cameras):
             return cameras
-        blank = CameraInfo.blank(model).params
         return {
-            camera_id: CameraInfo(
-                camera_id, model, camera.width, camera.height, blank, camera.has_prior_focal_length
+            camera_id: CameraInfo.of_model(
+                camera_id,
+                model,
+                camera.width,
+                camera.height,
+                self.intrinsics,
+                params,
+                has_prior_focal_length=camera.has_prior_focal_length,
             )
-            .with_intrinsics(self.fx, self.fy, self.cx, self.cy)
-            .with_distortion(params)
             for camera_id, camera in cameras.items()
         }
 

@@ -174,12 +174,9 @@ class LensDistortion:
         a few percent (k1 −0.06 at 3072×2048: 2.9 %); EuRoC's drone lens by a quarter in its
         ``RADIAL`` fit, and its ``SIMPLE_RADIAL`` k (−0.18) folds before the corner (inf)."""
         fx, fy, cx, cy = map(float, self.intrinsics)
-        blank = CameraInfo(
-            1, self.camera_model, width, height, CameraInfo.blank(self.camera_model).params
-        )
-        camera = (
-            blank.with_intrinsics(fx, fy, cx, cy).with_distortion(self.distortion).to_pycolmap()
-        )
+        camera = CameraInfo.of_model(
+            1, self.camera_model, width, height, self.intrinsics, self.distortion
+        ).to_pycolmap()
         corners = np.array([[0.0, 0.0], [width, 0.0], [0.0, height], [width, height]])
         farthest = corners[np.argmax(np.linalg.norm(corners - [cx, cy], axis=1))]
         undistorted = np.asarray(camera.cam_from_img(farthest[None]), float).reshape(-1)[:2]

@@ -79,11 +79,9 @@ class SharedCamera:
         at (fx, fy, cx, cy), pixels, its distortion parameters ``distortion`` (COLMAP's
         order; default 0)."""
         self.reconstruction = pycolmap.Reconstruction()
-        blank = pycolmap.Camera.create_from_model_name(CAMERA_ID, camera_model, 1.0, width, height)
-        zero = CameraInfo(CAMERA_ID, camera_model, width, height, np.zeros(len(blank.params)))
-        if distortion is not None:
-            zero = zero.with_distortion(distortion)
-        camera = zero.with_intrinsics(*map(float, intrinsics)).to_pycolmap()
+        camera = CameraInfo.of_model(
+            CAMERA_ID, camera_model, width, height, intrinsics, distortion
+        ).to_pycolmap()
         self.reconstruction.add_camera_with_trivial_rig(camera)
         self.triplets: list[AdjustedTriplet] = []
 
