@@ -173,14 +173,15 @@ def _reported(given: AssessInput) -> _Reported:
             reported_std[name] = float(candidate.held_std[index] * held_focal[index])
             estimate[index] = polished.intrinsics[index]
     pinhole = camera.model in PINHOLE_MODELS
+    if given.warped:
+        through_lens = lens is None or lens.corner_bend(camera.width, camera.height) >= STRONG_BEND
+    else:
+        # A pinhole camera's bent tracks keep the rule whatever the bend: without a warp
+        # the tracks did not show the lens, and the fit's tangential terms also take up
+        # errors that are not a lens's (KITTI's rectified frames: p1, p2 at 3 and 28 std).
+        through_lens = pinhole and lens is not None and lens.present
     rule = None
-    # A pinhole camera's bent tracks keep the rule whatever the bend: without a warp the
-    # tracks did not show the lens, and the fit's tangential terms also take up errors
-    # that are not a lens's (KITTI's rectified frames: p1, p2 at 3 and 28 std).
-    strong = lens is None or lens.corner_bend(camera.width, camera.height) >= STRONG_BEND
-    if (given.warped and strong) or (
-        not given.warped and pinhole and lens is not None and lens.present
-    ):
+    if through_lens:
         rule = THROUGH_LENS
     elif source["cx"] == "prior" and source["cy"] == "prior":
         rule = AT_HELD_CENTRE

@@ -350,28 +350,37 @@ def _finer_minima(
             for family, value in wanted
             if grids[family][0] <= value <= grids[family][-1] and value not in evaluated[family]
         ]
-        jobs = [(pairs, centre, scale, family, value) for family, value in wanted]
-        for (family, value), cost in zip(
-            wanted, map_jobs(_epipolar_job, jobs, workers), strict=True
-        ):
-            evaluated[family][value] = cost
+        _evaluate(pairs, centre, scale, wanted, evaluated, workers)
         for family in levels:
             best[family] = min(evaluated[family], key=evaluated[family].__getitem__)
             half[family] /= 2
-    found = {}
+    minima = {}
     for family in grids:
         centre_value, step = best[family], 2 * half[family]
         around = [round(centre_value + side * step, 6) for side in (-1.0, 0.0, 1.0)]
-        parameter = centre_value
+        minima[family] = centre_value
         if all(value in evaluated[family] for value in around):
-            parameter = _parabola_minimum(
+            minima[family] = _parabola_minimum(
                 np.array(around), np.array([evaluated[family][value] for value in around])
             )
-        if parameter in evaluated[family]:
-            found[family] = (parameter, evaluated[family][parameter])
-        else:
-            found[family] = (parameter, _epipolar_cost(pairs, centre, scale, family, parameter))
-    return found
+    wanted = [(family, value) for family, value in minima.items() if value not in evaluated[family]]
+    _evaluate(pairs, centre, scale, wanted, evaluated, workers)
+    return {family: (value, evaluated[family][value]) for family, value in minima.items()}
+
+
+def _evaluate(
+    pairs: list[tuple[np.ndarray, np.ndarray]],
+    centre: np.ndarray,
+    scale: float,
+    wanted: list[tuple[str, float]],
+    evaluated: dict[str, dict[float, float]],
+    workers: int | None,
+) -> None:
+    """The epipolar cost of each (family, parameter) of ``wanted`` into ``evaluated``
+    (by family, then parameter), over ``workers`` threads (None: one per core)."""
+    jobs = [(pairs, centre, scale, family, value) for family, value in wanted]
+    for (family, value), cost in zip(wanted, map_jobs(_epipolar_job, jobs, workers), strict=True):
+        evaluated[family][value] = cost
 
 
 def _epipolar_job(job: tuple[Any, ...]) -> float:
