@@ -125,7 +125,37 @@ SUBSETS = (
         "kitti-seq2-last11", "kitti", "kitti/sequences/seq2", "drive", "sequential", first=40
     ),
 )
-SCENES_BY_NAME = {scene.name: scene for scene in SCENES + SUBSETS}
+
+
+def through_lens(base: RealScene, k1: float) -> RealScene:
+    """``base``'s images as a lens with radial ``k1`` would have taken them."""
+    return RealScene(
+        f"{base.name}-k{k1:+g}", base.kind, base.path, f"{base.scene_class}, phone lens", lens_k1=k1
+    )
+
+
+_STRECHA = {s.name: s for s in SCENES if s.kind == "strecha" and s.lens_k1 == 0.0}
+#: Real images through phone-like lenses of other strengths (``benchmarks/real.py
+#: --lenses``, with the two lens scenes of ``SCENES``): a phone's main lens bends the
+#: corners by a few tens of pixels at 3072x2048 (k1 ±0.015 to ±0.1), a wide one by more
+#: (k1 −0.15 and −0.2: 124 and 165 px); docs/lenses.md.
+LENSES = tuple(
+    through_lens(_STRECHA[name], k1)
+    for name, k1 in (
+        ("Herz-Jesus-P8", -0.05),
+        ("Herz-Jesus-P8", 0.015),
+        ("Herz-Jesus-P8", 0.03),
+        ("Herz-Jesus-P8", 0.1),
+        ("entry-P10", -0.04),
+        ("entry-P10", -0.15),
+        ("fountain-P11", -0.1),
+        ("fountain-P11", -0.02),
+        ("fountain-P11", 0.05),
+        ("fountain-P11", -0.15),
+        ("fountain-P11", -0.2),
+    )
+)
+SCENES_BY_NAME = {scene.name: scene for scene in SCENES + SUBSETS + LENSES}
 
 
 def build_default_database(scene: RealScene, root: Path, target: Path) -> Path:

@@ -61,7 +61,9 @@ from .tensors.attempts import (
     checked_estimate,
     consensus,
     first_tensors_disagree,
+    focal_held_against_most,
     held_where_nothing_agrees,
+    majority_of,
     restarted,
 )
 from .tensors.estimator import TensorEstimator
@@ -280,6 +282,11 @@ def _finish(
     stage; ``lens_start`` (the estimate -> raw tracks and a distortion to start from)
     where the tracks were warped, which the lens stage alone adjusts (no polish)."""
     camera, options, method = inputs.data.camera, inputs.options, inputs.method
+    lens_stage = method == "msac-opt" and options.triplet_bundle
+    if lens_start is not None and lens_stage and focal_held_against_most(best):
+        through_lens = _focal_through_lens(inputs, best, lens_start)
+        if through_lens is not None:
+            return through_lens
     with inputs.clock("solve"):
         best = held_where_nothing_agrees(inputs, best)
         start, fallback = best.tensors.start, best.fallback
@@ -288,16 +295,15 @@ def _finish(
         polished = Polished(
             estimate, fallback.relative_std, best.agreeing, None, fallback.free_parameters
         )
-        if method != "msac-opt" or not options.triplet_bundle:
+        if not lens_stage:
             return Finished(best, polished, None)
-        by_images = inputs.tracks.by_images()
         if lens_start is None:
             # On warped tracks the lens stage adjusts K with the distortion from the
             # raw tracks: polishing K on the warped ones first would only move its start.
             polished = polish(
                 PolishInput(
                     best.tensors.tensors,
-                    by_images,
+                    inputs.tracks.by_images(),
                     start,
                     estimate,
                     fallback,
@@ -308,21 +314,70 @@ def _finish(
                     options.workers,
                 )
             )
-        lens = estimate_distortion(
-            DistortionInput(
-                best.tensors.tensors,
-                by_images,
-                start,
-                polished.intrinsics,
-                polished.free_parameters,
-                camera,
-                options.tau,
-                fallback.solution.inlier_tensors,
-                options.workers,
-                None if lens_start is None else lens_start(polished.intrinsics),
-            )
-        )
+        lens = _lens_stage(inputs, best, polished, lens_start)
     return Finished(best, polished, lens)
+
+
+def _focal_through_lens(
+    inputs: AttemptInputs, best: Attempt, lens_start: Callable[[np.ndarray], LensStart]
+) -> Finished | None:
+    """On warped tracks whose solve holds the focal length at the warp's focal search,
+    which most tensors disagree with (:func:`.focal_held_against_most`): the lens stage
+    with the focal length free from there, kept where it finds the distortion and at
+    least half the tensors' triplets agree with its camera; else None (the value is then
+    held at the start, :func:`.held_where_nothing_agrees`).
+
+    Why. The warped tensors only approximate the lens (a one-parameter warp about the
+    start's principal point), and on a near-planar scene the few pixels that leaves in
+    the image corners make most of them disagree. The lens stage fits the camera's own
+    model to the raw tracks, principal point included: its calibrated adjustment is the
+    stronger test of a focal length (docs/lenses.md, "A focal length the warped tensors
+    leave to a minority").
+    """
+    camera = inputs.data.camera
+    freed = replace(best.fallback.free_parameters, focal="tied" if camera.single_focal else "free")
+    with inputs.clock("solve"):
+        estimate = checked_estimate(best, camera.camera_id, inputs.method)
+    with inputs.clock("polish"):
+        polished = Polished(estimate, best.fallback.relative_std, best.agreeing, None, freed)
+        lens = _lens_stage(inputs, best, polished, lens_start)
+    total = len(best.tensors.tensors)
+    if lens is not None and not (lens.present and majority_of(lens.agreeing, total)):
+        lens = None
+    logger.info(
+        "camera %d: %d of %d warped tensors agree with the lens search's focal length; "
+        "the lens stage with f free: %s",
+        camera.camera_id,
+        best.agreeing,
+        total,
+        "not kept" if lens is None else f"{lens.agreeing} triplets agree, kept",
+    )
+    return None if lens is None else Finished(best, polished, lens)
+
+
+def _lens_stage(
+    inputs: AttemptInputs,
+    best: Attempt,
+    polished: Polished,
+    lens_start: Callable[[np.ndarray], LensStart] | None,
+) -> LensDistortion | None:
+    """The lens stage (:func:`.estimate_distortion`) from the polished estimate, for what
+    it estimates."""
+    options = inputs.options
+    return estimate_distortion(
+        DistortionInput(
+            best.tensors.tensors,
+            inputs.tracks.by_images(),
+            best.tensors.start,
+            polished.intrinsics,
+            polished.free_parameters,
+            inputs.data.camera,
+            options.tau,
+            best.fallback.solution.inlier_tensors,
+            options.workers,
+            None if lens_start is None else lens_start(polished.intrinsics),
+        )
+    )
 
 
 def _through_lens_search(raw: AttemptInputs) -> LensRoute:

@@ -246,11 +246,10 @@ def held_where_nothing_agrees(inputs: AttemptInputs, best: Attempt) -> Attempt:
         return best
     candidate = held_at_the_start(best.candidate, inputs.data.prior)
     if consensus(best.fallback):
-        free_parameters = best.fallback.free_parameters
-        if best.majority_agrees or free_parameters.focal != "held" or candidate is best.candidate:
+        if not focal_held_against_most(best):
             return best
         what = "the focal search's focal length: held at the start"
-        return _solved_at(inputs, best, candidate, free_parameters, what)
+        return _solved_at(inputs, best, candidate, best.fallback.free_parameters, what)
     if best.fallback.free_parameters.dimension == 0 and candidate is best.candidate:
         return best  # already held, at the start's values
     return _solved_at(inputs, best, candidate, HELD, "the estimate: every value held")
@@ -290,9 +289,25 @@ def held_at_the_start(candidate: StartCandidate, prior: np.ndarray) -> StartCand
     return StartCandidate(candidate.start, prior.copy(), held_std, "prior")
 
 
+def focal_held_against_most(best: Attempt) -> bool:
+    """Whether enough tensors agree with ``best`` (:func:`consensus`) while its focal
+    length is held at the focal search's value, which most of them disagree with."""
+    return (
+        consensus(best.fallback)
+        and not best.majority_agrees
+        and best.fallback.free_parameters.focal == "held"
+        and best.candidate.held_source == "focal-search"
+    )
+
+
 def majority(inliers: np.ndarray) -> bool:
     """Whether at least half the tensors (bool per tensor) agree."""
-    return 2 * int(inliers.sum()) >= len(inliers)
+    return majority_of(int(inliers.sum()), len(inliers))
+
+
+def majority_of(agreeing: int, total: int) -> bool:
+    """Whether ``agreeing`` is at least half of ``total``."""
+    return 2 * agreeing >= total
 
 
 def consensus(fallback: FallbackSolution) -> bool:
