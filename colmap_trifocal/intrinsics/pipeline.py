@@ -282,11 +282,11 @@ def _finish(
     stage; ``lens_start`` (the estimate -> raw tracks and a distortion to start from)
     where the tracks were warped, which the lens stage alone adjusts (no polish)."""
     camera, options, method = inputs.data.camera, inputs.options, inputs.method
-    lens_stage = method == "msac-opt" and options.triplet_bundle
-    if lens_start is not None and lens_stage and focal_held_against_most(best):
-        through_lens = _focal_through_lens(inputs, best, lens_start)
-        if through_lens is not None:
-            return through_lens
+    triplet_bundle = method == "msac-opt" and options.triplet_bundle
+    if lens_start is not None and triplet_bundle and focal_held_against_most(best):
+        finished = _focal_through_lens(inputs, best, lens_start)
+        if finished is not None:
+            return finished
     with inputs.clock("solve"):
         best = held_where_nothing_agrees(inputs, best)
         start, fallback = best.tensors.start, best.fallback
@@ -295,7 +295,7 @@ def _finish(
         polished = Polished(
             estimate, fallback.relative_std, best.agreeing, None, fallback.free_parameters
         )
-        if not lens_stage:
+        if not triplet_bundle:
             return Finished(best, polished, None)
         if lens_start is None:
             # On warped tracks the lens stage adjusts K with the distortion from the
