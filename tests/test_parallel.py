@@ -259,3 +259,44 @@ def test_lens_fits_side_by_side_give_the_same_bits(
     assert out["2"]["forked"] >= 1 and out["1"]["forked"] == out["2"]["forked"]
     for key in ("intrinsics", "std"):
         assert out["1"][key] == out["2"][key], key
+
+
+@pytest.mark.real_data
+def test_polish_jobs_in_worker_processes_give_the_same_bits(
+    real_scene_database: Callable[[str, str], Path],
+) -> None:
+    """entry-P10's 20 triplets: the tracks' plane parallax and the polish's projective
+    refits and Schur complements run in forked processes with 2 workers
+    (``MIN_FORKED_JOBS``), and the result is the one worker's, bit for bit."""
+    run = _python(
+        """
+        import json, sys
+        from colmap_trifocal import CalibrationOptions, calibrate_database
+        from colmap_trifocal.common import parallel
+        forked = []
+        in_processes = parallel._in_processes
+        def counted(function, jobs, workers, bar):
+            forked.append(function.__name__)
+            return in_processes(function, jobs, workers, bar)
+        parallel._in_processes = counted
+        out = {}
+        for workers in (2, 1):
+            forked.clear()
+            (result,) = calibrate_database(sys.argv[1], CalibrationOptions(workers=workers))
+            out[workers] = {
+                "intrinsics": result.intrinsics.tobytes().hex(),
+                "std": result.std,
+                "polished": result.triplet_bundle is not None and result.triplet_bundle["used"],
+                "forked": sorted(set(forked)),
+            }
+        print(json.dumps(out))
+        """,
+        str(real_scene_database("entry-P10", "pinhole")),
+    )
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    assert {"_parallax_job", "_observed_job", "_information_job"} <= set(out["2"]["forked"])
+    assert out["1"]["forked"] == []
+    assert out["2"]["polished"]  # the polish ran and was kept: its jobs decided the result
+    for key in ("intrinsics", "std"):
+        assert out["1"][key] == out["2"][key], key

@@ -8,7 +8,10 @@ core: nothing is pickled and no process starts. A triplet's projective refinemen
 per-call overhead that holds the GIL: two threads ran it no faster than one. Its jobs
 run in forked processes instead (``processes=True``), where forking is safe
 (:func:`can_fork`): the children inherit the jobs and the calibration's state with
-the fork, and only their results are pickled back. The evaluation's many independent
+the fork, and only their results are pickled back. So do the other per-triplet numpy
+jobs from ``MIN_FORKED_JOBS`` triplets on (the polish's and the lens stage's
+projective refits, calibrated cameras and Schur complements; the plane parallax that
+weighs candidate triplets). The evaluation's many independent
 calibrations use processes of their own (:mod:`..evaluation.runner`).
 """
 
@@ -35,6 +38,13 @@ from .errors import CalibrationError
 from .log import logger
 
 MAX_WORKERS = 8
+#: Jobs from which a call of per-triplet numpy work that holds the GIL (a few
+#: milliseconds a triplet: the polish's projective refits, calibrated cameras and Schur
+#: complements, the tracks' plane parallax) goes to forked processes (threads below).
+#: A fork costs 1–3 ms, and the copy-on-write faults it leaves the caller 0.01–0.03 s
+#: more; from 10 triplets on, the half another core takes saves more than that
+#: (docs/accuracy.md, thirty-first session).
+MIN_FORKED_JOBS = 10
 #: What a caller hears of a worker process that died (killed, out of memory).
 WORKER_DIED = (
     "a worker process died; with one worker (--workers 1, workers=1) all the work stays "

@@ -43,7 +43,7 @@ from itertools import chain, combinations
 import numpy as np
 from scipy.stats import spearmanr
 
-from ..common.parallel import map_jobs
+from ..common.parallel import MIN_FORKED_JOBS, map_jobs
 from .parallax import _parallax_job, parallax_score, triplet_points
 
 Pair = tuple[int, int]
@@ -325,7 +325,8 @@ def select_triplets(  # noqa: PLR0913 (the view graph, the bounds, and how track
     (:meth:`MatchGraph.chained_track_indices`), not only the 3-cycle-consistent ones.
     With ``keypoints`` (image id -> (m, ≥2) pixels) the spread weighs candidates by
     :func:`parallax_score` instead of their track count (computed over ``workers``
-    threads, None: one per core; ``seed`` draws the RANSAC samples of the parallax).
+    threads, or forked processes from ``MIN_FORKED_JOBS`` candidates, None: one per
+    core; ``seed`` draws the RANSAC samples of the parallax).
     """
     track_indices = graph.chained_track_indices if chained else graph.track_indices
     if max_triplets is None:
@@ -356,9 +357,8 @@ def select_triplets(  # noqa: PLR0913 (the view graph, the bounds, and how track
     if len(evaluated) <= max_triplets:
         return evaluated
     if keypoints is not None:
-        parallax = map_jobs(
-            _parallax_job, [(triplet_points(t, keypoints), seed) for t in evaluated], workers
-        )
+        jobs = [(triplet_points(t, keypoints), seed) for t in evaluated]
+        parallax = map_jobs(_parallax_job, jobs, workers, processes=len(jobs) >= MIN_FORKED_JOBS)
         weights = np.array(
             [
                 parallax_score(len(t.keypoint_indices), p)

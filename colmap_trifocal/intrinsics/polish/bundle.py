@@ -52,7 +52,7 @@ from typing import Any
 
 import numpy as np
 
-from ...common.parallel import map_jobs
+from ...common.parallel import MIN_FORKED_JOBS, map_jobs
 from ...geometry.tensor_estimation import TripletTensor
 from ..solve.fallback import FallbackSolution
 from ..solve.parametrization import FreeParameters
@@ -279,9 +279,11 @@ def calibrated_information(
     also on its radial coefficients, :func:`intrinsics.polish.information.reduced_information`),
     from its calibrated cameras (:func:`calibrated_cameras`) and its tracks (at most
     ``max_tracks``) triangulated; tensors where either cannot be formed are left out.
-    Milliseconds per tensor, over ``workers`` threads (None: one per core)."""
+    Milliseconds per tensor, over ``workers`` threads, or forked processes from
+    ``MIN_FORKED_JOBS`` tensors (None: one per core)."""
     jobs = [(tensor, tracks, start, intrinsics, radial, max_tracks) for tensor in tensors]
-    return [part for part in map_jobs(_information_job, jobs, workers) if part is not None]
+    parts = map_jobs(_information_job, jobs, workers, processes=len(jobs) >= MIN_FORKED_JOBS)
+    return [part for part in parts if part is not None]
 
 
 def _information_job(job: tuple[Any, ...]) -> TripletInformation | None:

@@ -18,7 +18,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ...common.parallel import map_jobs
+from ...common.parallel import MIN_FORKED_JOBS, map_jobs
 from ...common.sampling import evenly_spaced
 from ...geometry.motion import recover_pose
 from ...geometry.projective_ba import refined_cost
@@ -129,13 +129,15 @@ def observed_tracks(
 ) -> list[Observed]:
     """Each tensor's inlier tracks (at most ``MAX_TRACKS``, evenly spaced) and their
     projective cost, from a projective bundle adjustment warm-started at its cameras
-    (over ``workers`` threads; None: one per core).
+    (over ``workers`` threads, or forked processes from ``MIN_FORKED_JOBS`` tensors;
+    None: one per core).
 
     The tensor's own noise estimate comes from the tracks its last refinement used,
     not these, so C_proj is measured on exactly the tracks λ compares.
     """
     jobs = [(index, tensor, tracks, start, max_tracks) for index, tensor in enumerate(tensors)]
-    return [o for o in map_jobs(_observed_job, jobs, workers) if o is not None]
+    observed = map_jobs(_observed_job, jobs, workers, processes=len(jobs) >= MIN_FORKED_JOBS)
+    return [o for o in observed if o is not None]
 
 
 def _observed_job(job: tuple[Any, ...]) -> Observed | None:
