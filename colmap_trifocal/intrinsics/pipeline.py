@@ -390,6 +390,14 @@ def _through_lens_search(raw: AttemptInputs) -> LensRoute:
     unwarped run as it would have gone on. Where they agree, no second starts and no
     restart: the lens stage adjusts K from the raw tracks, so the warped tensors only
     choose its triplets and its start.
+
+    The warps are centred on the start's principal point. Where fewer than half the
+    tensors agree on them and that point is not the image centre (a prior's), the same
+    warps about the image centre are tried too, and the run where more tensors agree is
+    kept. A prior's principal point can be tens of pixels off (±5 %: 75 px across a
+    3072-pixel image), where a lens's centre lies near the image centre; a strong lens
+    warped about the wrong centre leaves its tracks bent enough in the corners that
+    most tensors disagree (docs/lenses.md, "The warp's centre").
     """
     data, tracks, options = raw.data, raw.tracks, raw.options
     camera = data.camera
@@ -397,33 +405,36 @@ def _through_lens_search(raw: AttemptInputs) -> LensRoute:
         found = find_warp(data, tracks, options)
     if not found.clear:
         return LensRoute(None, 0, found)
-    spent = 0
-    for family, parameter in found.candidates():
-        if not raw.estimator.can_afford(spent + len(tracks.triplets)):
-            return LensRoute(None, spent, found)
-        warp = replace(found, family=family, parameter=parameter)
-        warped_data, warped_tracks = warped_input(data, tracks, warp)
-        estimator = TensorEstimator(warped_tracks, camera.camera_id, options, raw.estimator.seeds)
-        inputs = replace(raw, data=warped_data, tracks=warped_tracks, estimator=estimator)
-        best = attempt(inputs, first_start(data.prior, warp.focal), restart=False, complete=False)
-        if not consensus(best.fallback):
-            best = restarted(inputs, best)
-        spent += estimator.starts_used
-        if consensus(best.fallback):
-            break
+    run, spent = _warped_attempt(raw, found, 0)
+    centre = np.array([camera.width, camera.height], float) / 2
+    if (run is None or not run.best.majority_agrees) and not np.array_equal(centre, found.centre):
+        # The search again about the image centre: the best warp about a wrong centre
+        # is not the lens's about the right one.
+        with raw.clock("lens_search"):
+            about_centre = find_warp(data, tracks, options, centre)
+        centred = None
+        if about_centre.clear:
+            # As much tensor work as the warps about the start's principal point took.
+            centred, spent = _warped_attempt(raw, about_centre, spent, allowance=spent)
+        better = centred is not None and (run is None or centred.best.agreeing >= run.best.agreeing)
         logger.info(
-            "camera %d: %d of %d tensors agree on the tracks warped with %s",
+            "camera %d: of %d triplets, %s agree on the tracks warped about the start's "
+            "principal point, %s about the image centre (%s)",
             camera.camera_id,
-            best.agreeing,
-            len(best.tensors.tensors),
-            warp.describe(),
+            len(tracks.triplets),
+            "too few" if run is None else run.best.agreeing,
+            "too few" if centred is None else centred.best.agreeing,
+            "used" if better else "not used",
         )
-    else:
+        if better:
+            run, found = centred, about_centre
+    if run is None:
         return LensRoute(None, spent, found)
     by_images = tracks.by_images()
+    warp = run.warp
     finished = _finish(
-        inputs,
-        best,
+        run.inputs,
+        run.best,
         lambda intrinsics: LensStart(
             by_images, distortion_start(camera, warp, by_images, intrinsics)
         ),
@@ -433,4 +444,49 @@ def _through_lens_search(raw: AttemptInputs) -> LensRoute:
             "camera %d: the lens adjustment did not confirm the warp: not used", camera.camera_id
         )
         return LensRoute(None, spent, found)
-    return LensRoute(Warped(inputs, warp.focal, finished), spent, found)
+    return LensRoute(Warped(run.inputs, warp.focal, finished), spent, found)
+
+
+@dataclass
+class _WarpedAttempt:
+    """The attempt on tracks warped with ``warp`` whose tensors reached a consensus."""
+
+    inputs: AttemptInputs
+    best: Attempt
+    warp: LensSearchResult
+
+
+def _warped_attempt(
+    raw: AttemptInputs, found: LensSearchResult, spent: int, allowance: int | None = None
+) -> tuple[_WarpedAttempt | None, int]:
+    """The first of the search's warps (:meth:`.LensSearchResult.candidates`) on whose
+    tracks enough tensors agree (:func:`.consensus`), or None where none does, the
+    camera's tensor budget runs out or this call has spent ``allowance`` refinement
+    starts (None: no bound but the budget) before a warp; and the refinement starts
+    spent, counted on from ``spent``."""
+    data, tracks, options = raw.data, raw.tracks, raw.options
+    camera = data.camera
+    before = spent
+    for family, parameter in found.candidates():
+        if not raw.estimator.can_afford(spent + len(tracks.triplets)):
+            return None, spent
+        if allowance is not None and spent - before >= allowance:
+            return None, spent
+        warp = replace(found, family=family, parameter=parameter)
+        warped_data, warped_tracks = warped_input(data, tracks, warp)
+        estimator = TensorEstimator(warped_tracks, camera.camera_id, options, raw.estimator.seeds)
+        inputs = replace(raw, data=warped_data, tracks=warped_tracks, estimator=estimator)
+        best = attempt(inputs, first_start(data.prior, warp.focal), restart=False, complete=False)
+        if not consensus(best.fallback):
+            best = restarted(inputs, best)
+        spent += estimator.starts_used
+        if consensus(best.fallback):
+            return _WarpedAttempt(inputs, best, warp), spent
+        logger.info(
+            "camera %d: %d of %d tensors agree on the tracks warped with %s",
+            camera.camera_id,
+            best.agreeing,
+            len(best.tensors.tensors),
+            warp.describe(),
+        )
+    return None, spent

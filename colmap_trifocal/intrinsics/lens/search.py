@@ -220,19 +220,20 @@ def search_lens(
     threshold_px: float,
     image_size: tuple[int, int],
     workers: int | None = None,
+    centre: np.ndarray | None = None,
 ) -> LensSearchResult:
     """The radial warp and focal length that best explain the triplets' tracks.
 
     Args:
         tracks: per triplet, its tracks (3, n, 2), pixels as observed (distorted).
-        start: (fx, fy, cx, cy) the search starts from, pixels; the warp is centred
-            on its principal point.
+        start: (fx, fy, cx, cy) the search starts from, pixels.
         rng: draws the focal search's track subsets.
         threshold_px: the focal search's inlier threshold, pixels.
         image_size: (width, height), pixels.
         workers: threads (None: one per core).
+        centre: (2,) the warps' centre, pixels (None: the start's principal point).
     """
-    centre = np.asarray(start[2:4], float)
+    centre = np.asarray(start[2:4] if centre is None else centre, float)
     corners = np.array([[0.0, 0.0], [image_size[0], 0.0], [0.0, image_size[1]], image_size])
     scale = float(np.max(np.linalg.norm(corners - centre, axis=1)))
     pairs = [

@@ -43,10 +43,14 @@ def lens_search_applies(camera: CameraInfo, method: str, options: CalibrationOpt
 
 
 def find_warp(
-    data: CameraInput, tracks: CameraTracks, options: CalibrationOptions
+    data: CameraInput,
+    tracks: CameraTracks,
+    options: CalibrationOptions,
+    centre: np.ndarray | None = None,
 ) -> LensSearchResult:
     """The lens search over the first ``options.search_triplets`` triplets, seeded by the
-    camera's seed sequence (the key after the triplets' and the focal search's)."""
+    camera's seed sequence (the key after the triplets' and the focal search's), its
+    warps centred on ``centre`` (pixels; None: the start's principal point)."""
     camera = data.camera
     rng = np.random.default_rng(
         np.random.SeedSequence(options.seed, spawn_key=(len(tracks.triplets) + 1,))
@@ -58,10 +62,12 @@ def find_warp(
         options.tensor.inlier_threshold_px,
         (camera.width, camera.height),
         options.workers,
+        centre,
     )
     logger.info(
-        "camera %d: lens search: %s, %.1f px (the unwarped tracks cost %.1fx; %s)",
+        "camera %d: lens search%s: %s, %.1f px (the unwarped tracks cost %.1fx; %s)",
         camera.camera_id,
+        "" if centre is None else " about the image centre",
         found.describe(),
         found.focal.focal,
         found.ratio,
