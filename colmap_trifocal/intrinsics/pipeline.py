@@ -391,13 +391,9 @@ def _through_lens_search(raw: AttemptInputs) -> LensRoute:
     restart: the lens stage adjusts K from the raw tracks, so the warped tensors only
     choose its triplets and its start.
 
-    The warps are centred on the start's principal point. Where fewer than half the
-    tensors agree on them and that point is not the image centre (a prior's), the same
-    warps about the image centre are tried too, and the run where more tensors agree is
-    kept. A prior's principal point can be tens of pixels off (±5 %: 75 px across a
-    3072-pixel image), where a lens's centre lies near the image centre; a strong lens
-    warped about the wrong centre leaves its tracks bent enough in the corners that
-    most tensors disagree (docs/lenses.md, "The warp's centre").
+    The warps are centred on the start's principal point; where fewer than half the
+    tensors agree on them, the warps about the image centre too
+    (:func:`_about_image_centre`).
     """
     data, tracks, options = raw.data, raw.tracks, raw.options
     camera = data.camera
@@ -406,28 +402,8 @@ def _through_lens_search(raw: AttemptInputs) -> LensRoute:
     if not found.clear:
         return LensRoute(None, 0, found)
     run, spent = _warped_attempt(raw, found, 0)
-    centre = np.array([camera.width, camera.height], float) / 2
-    if (run is None or not run.best.majority_agrees) and not np.array_equal(centre, found.centre):
-        # The search again about the image centre: the best warp about a wrong centre
-        # is not the lens's about the right one.
-        with raw.clock("lens_search"):
-            about_centre = find_warp(data, tracks, options, centre)
-        centred = None
-        if about_centre.clear:
-            # As much tensor work as the warps about the start's principal point took.
-            centred, spent = _warped_attempt(raw, about_centre, spent, allowance=spent)
-        better = centred is not None and (run is None or centred.best.agreeing >= run.best.agreeing)
-        logger.info(
-            "camera %d: of %d triplets, %s agree on the tracks warped about the start's "
-            "principal point, %s about the image centre (%s)",
-            camera.camera_id,
-            len(tracks.triplets),
-            "too few" if run is None else run.best.agreeing,
-            "too few" if centred is None else centred.best.agreeing,
-            "used" if better else "not used",
-        )
-        if better:
-            run, found = centred, about_centre
+    if run is None or not run.best.majority_agrees:
+        run, found, spent = _about_image_centre(raw, found, run, spent)
     if run is None:
         return LensRoute(None, spent, found)
     by_images = tracks.by_images()
@@ -445,6 +421,46 @@ def _through_lens_search(raw: AttemptInputs) -> LensRoute:
         )
         return LensRoute(None, spent, found)
     return LensRoute(Warped(run.inputs, warp.focal, finished), spent, found)
+
+
+def _about_image_centre(
+    raw: AttemptInputs, found: LensSearchResult, run: _WarpedAttempt | None, spent: int
+) -> tuple[_WarpedAttempt | None, LensSearchResult, int]:
+    """Where the warps about the start's principal point (``found``; ``run`` the attempt
+    on them, None where no warp reached a consensus) leave most tensors disagreeing and
+    that point is not the image centre (a prior's): the lens search again about the image
+    centre, its warps tried with as much tensor work as the first ones took (``spent``),
+    and its run kept where at least as many tensors agree on it. Returns the run and
+    the search kept and the refinement starts spent.
+
+    Why. A prior's principal point can be tens of pixels off (±5 %: 75 px across a
+    3072-pixel image), where a lens's centre lies near the image centre; about the wrong
+    centre a strong lens's tracks stay bent in the corners, and the best warp about it
+    is not the lens's about the right one. A tie goes to the image centre, the better
+    prior for a lens's centre (docs/lenses.md, "The warp's centre").
+    """
+    camera = raw.data.camera
+    centre = np.array([camera.width, camera.height], float) / 2
+    if np.array_equal(centre, found.centre):
+        return run, found, spent
+    with raw.clock("lens_search"):
+        about_centre = find_warp(raw.data, raw.tracks, raw.options, centre)
+    centred = None
+    if about_centre.clear:
+        centred, spent = _warped_attempt(raw, about_centre, spent, allowance=spent)
+    better = centred is not None and (run is None or centred.best.agreeing >= run.best.agreeing)
+    logger.info(
+        "camera %d: of %d triplets, %s agree on the tracks warped about the start's "
+        "principal point, %s about the image centre (%s)",
+        camera.camera_id,
+        len(raw.tracks.triplets),
+        "too few" if run is None else run.best.agreeing,
+        "too few" if centred is None else centred.best.agreeing,
+        "used" if better else "not used",
+    )
+    if centred is not None and better:
+        return centred, about_centre, spent
+    return run, found, spent
 
 
 @dataclass
