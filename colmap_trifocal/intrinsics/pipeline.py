@@ -37,6 +37,7 @@ from ..database.snapshot import DatabaseContents
 from .assess.assessment import AssessInput, assess
 from .baselines.fundamental import calibrate_fundamental
 from .inputs.camera_input import CameraInput, camera_input
+from .inputs.prior import default_guess
 from .inputs.triplet_selection import CameraTracks, select_camera_triplets
 from .lens.distortion import DistortionInput, LensDistortion, LensStart, estimate_distortion
 from .lens.search import LensSearchResult
@@ -440,7 +441,7 @@ def _about_image_centre(
     prior for a lens's centre (docs/lenses.md, "The warp's centre").
     """
     camera = raw.data.camera
-    centre = np.array([camera.width, camera.height], float) / 2
+    centre = default_guess(camera.width, camera.height)[2:]  # COLMAP's principal point
     if np.array_equal(centre, found.centre):
         return run, found, spent
     with raw.clock("lens_search"):
