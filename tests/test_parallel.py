@@ -300,3 +300,42 @@ def test_polish_jobs_in_worker_processes_give_the_same_bits(
     assert out["2"]["polished"]  # the polish ran and was kept: its jobs decided the result
     for key in ("intrinsics", "std"):
         assert out["1"][key] == out["2"][key], key
+
+
+@pytest.mark.real_data
+def test_the_rings_small_tensor_calls_run_in_worker_processes_with_the_same_bits(
+    real_scene_database: Callable[[str, str], Path],
+) -> None:
+    """The temple ring's tensor calls have 6, 3 and 1 refinement starts: with 2 workers
+    each of two or more starts runs in forked processes (``MIN_STARTS_IN_PROCESSES``),
+    the single one in the caller, and the result is the one worker's, bit for bit."""
+    run = _python(
+        """
+        import json, sys
+        from colmap_trifocal import CalibrationOptions, calibrate_database
+        from colmap_trifocal.common import parallel
+        forked = []
+        in_processes = parallel._in_processes
+        def counted(function, jobs, workers, bar):
+            forked.append((function.__name__, len(jobs)))
+            return in_processes(function, jobs, workers, bar)
+        parallel._in_processes = counted
+        out = {}
+        for workers in (2, 1):
+            forked.clear()
+            (result,) = calibrate_database(sys.argv[1], CalibrationOptions(workers=workers))
+            out[workers] = {
+                "intrinsics": result.intrinsics.tobytes().hex(),
+                "std": result.std,
+                "tensor_calls": [jobs for name, jobs in forked if name == "_call"],
+            }
+        print(json.dumps(out))
+        """,
+        str(real_scene_database("temple-ring", "pinhole")),
+    )
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    assert out["2"]["tensor_calls"] == [6, 3]
+    assert out["1"]["tensor_calls"] == []
+    for key in ("intrinsics", "std"):
+        assert out["1"][key] == out["2"][key], key

@@ -42,12 +42,12 @@ from ..solve.theta import intrinsics_to_theta
 #: start or second starts are run only while they fit (the first start always runs).
 MAX_STARTS_PER_TRIPLET = 8
 #: Refinement starts from which one call's fits go to forked worker processes (threads
-#: below). A start is 6–17 ms of GIL-bound numpy on the real scenes; a fork costs 10–30
-#: ms with the copy-on-write faults it leaves the caller (more in a larger process): from
-#: 8 starts on, the half another core takes saves more than that. On the ring (calls of
-#: 6, 3 and 1 starts) processes cost 0.03 s a run in a long-lived process; on entry-P10's
-#: and EuRoC's 14- and 20-start calls they save 0.1–0.3 s (docs/accuracy.md).
-MIN_STARTS_IN_PROCESSES = 8
+#: below): every call of two or more. A start is 6–70 ms of GIL-bound numpy on the real
+#: scenes, and two threads run two starts no faster than one; a fork costs 1–3 ms and a
+#: few thousand copy-on-write faults (0.01–0.02 s), less than the half of a 3–6 start
+#: call another core takes (on entry-P10's first six starts and the ring's three, in a
+#: fresh process and in a long-lived one; docs/accuracy.md, thirty-second session).
+MIN_STARTS_IN_PROCESSES = 2
 
 
 @dataclass
