@@ -261,54 +261,10 @@ def test_lens_fits_side_by_side_give_the_same_bits(
         assert out["1"][key] == out["2"][key], key
 
 
-@pytest.mark.real_data
-def test_polish_jobs_in_worker_processes_give_the_same_bits(
-    real_scene_database: Callable[[str, str], Path],
-) -> None:
-    """entry-P10's 20 triplets: the tracks' plane parallax and the polish's projective
-    refits and Schur complements run in forked processes with 2 workers
-    (``MIN_FORKED_JOBS``), and the result is the one worker's, bit for bit."""
-    run = _python(
-        """
-        import json, sys
-        from colmap_trifocal import CalibrationOptions, calibrate_database
-        from colmap_trifocal.common import parallel
-        forked = []
-        in_processes = parallel._in_processes
-        def counted(function, jobs, workers, bar):
-            forked.append(function.__name__)
-            return in_processes(function, jobs, workers, bar)
-        parallel._in_processes = counted
-        out = {}
-        for workers in (2, 1):
-            forked.clear()
-            (result,) = calibrate_database(sys.argv[1], CalibrationOptions(workers=workers))
-            out[workers] = {
-                "intrinsics": result.intrinsics.tobytes().hex(),
-                "std": result.std,
-                "polished": result.triplet_bundle is not None and result.triplet_bundle["used"],
-                "forked": sorted(set(forked)),
-            }
-        print(json.dumps(out))
-        """,
-        str(real_scene_database("entry-P10", "pinhole")),
-    )
-    assert run.returncode == 0, run.stderr
-    out = json.loads(run.stdout)
-    assert {"_parallax_job", "_observed_job", "_information_job"} <= set(out["2"]["forked"])
-    assert out["1"]["forked"] == []
-    assert out["2"]["polished"]  # the polish ran and was kept: its jobs decided the result
-    for key in ("intrinsics", "std"):
-        assert out["1"][key] == out["2"][key], key
-
-
-@pytest.mark.real_data
-def test_the_rings_small_tensor_calls_run_in_worker_processes_with_the_same_bits(
-    real_scene_database: Callable[[str, str], Path],
-) -> None:
-    """The temple ring's tensor calls have 6, 3 and 1 refinement starts: with 2 workers
-    each of two or more starts runs in forked processes (``MIN_STARTS_IN_PROCESSES``),
-    the single one in the caller, and the result is the one worker's, bit for bit."""
+def _with_forks_counted(database: Path) -> dict[str, dict]:
+    """One calibration of ``database`` with 2 workers and one with 1, in a fresh Python:
+    per worker count ("2", "1"), the estimate's bytes, its std, whether the polish was
+    kept, and every call that went to forked processes as [job function, jobs]."""
     run = _python(
         """
         import json, sys
@@ -327,15 +283,40 @@ def test_the_rings_small_tensor_calls_run_in_worker_processes_with_the_same_bits
             out[workers] = {
                 "intrinsics": result.intrinsics.tobytes().hex(),
                 "std": result.std,
-                "tensor_calls": [jobs for name, jobs in forked if name == "_call"],
+                "polished": result.triplet_bundle is not None and result.triplet_bundle["used"],
+                "forked": list(forked),
             }
         print(json.dumps(out))
         """,
-        str(real_scene_database("temple-ring", "pinhole")),
+        str(database),
     )
     assert run.returncode == 0, run.stderr
-    out = json.loads(run.stdout)
-    assert out["2"]["tensor_calls"] == [6, 3]
-    assert out["1"]["tensor_calls"] == []
+    out: dict[str, dict] = json.loads(run.stdout)
     for key in ("intrinsics", "std"):
         assert out["1"][key] == out["2"][key], key
+    assert out["1"]["forked"] == []
+    return out
+
+
+@pytest.mark.real_data
+def test_polish_jobs_in_worker_processes_give_the_same_bits(
+    real_scene_database: Callable[[str, str], Path],
+) -> None:
+    """entry-P10's 20 triplets: the tracks' plane parallax and the polish's projective
+    refits and Schur complements run in forked processes with 2 workers
+    (``MIN_FORKED_JOBS``), and the result is the one worker's, bit for bit."""
+    out = _with_forks_counted(real_scene_database("entry-P10", "pinhole"))
+    forked = {name for name, _ in out["2"]["forked"]}
+    assert {"_parallax_job", "_observed_job", "_information_job"} <= forked
+    assert out["2"]["polished"]  # the polish ran and was kept: its jobs decided the result
+
+
+@pytest.mark.real_data
+def test_the_rings_small_tensor_calls_run_in_worker_processes_with_the_same_bits(
+    real_scene_database: Callable[[str, str], Path],
+) -> None:
+    """The temple ring's tensor calls have 6, 3 and 1 refinement starts: with 2 workers
+    each of two or more starts runs in forked processes (``MIN_STARTS_IN_PROCESSES``),
+    the single one in the caller, and the result is the one worker's, bit for bit."""
+    out = _with_forks_counted(real_scene_database("temple-ring", "pinhole"))
+    assert [jobs for name, jobs in out["2"]["forked"] if name == "_call"] == [6, 3]
