@@ -13,6 +13,7 @@ otherwise read as estimated. θ are the relative corrections of :mod:`.theta`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -29,23 +30,63 @@ from .parametrization import FreeParameters, Parametrization
 @dataclass
 class FallbackSolution:
     """How :func:`solve_with_fallback` solved a camera's :class:`FallbackProblem`: the
-    solve of every parameter the camera model has, and the one finally kept."""
+    solve of every parameter the camera model has, and the one finally kept.
+
+    Its std and the test of what the data moves each take solves of their own, and
+    only the solution a camera's estimate is polished and assessed from needs them,
+    not the attempts it was chosen among: they are computed when first read."""
 
     solution: ConstraintSolution  # of ``free_parameters``
     free_parameters: FreeParameters  # the parameters the images determine
     unconstrained: ConstraintSolution  # of ``base``: every parameter the camera model has
-    #: (4,) std of θ of ``solution``, its ties and holds counted as uncertain
-    #: (:func:`intrinsics.solve.observability.effective_std`); meaningful for the estimated
-    #: parameters.
-    relative_std: np.ndarray
-    #: (4,) the std of θ below which a parameter counted as determined.
-    tolerances: np.ndarray
-    #: (4,) how much each estimated θ moved when the held values were moved by their
-    #: std (:func:`held_value_sensitivity`; zero where nothing is held).
-    held_shift: np.ndarray = field(default_factory=lambda: np.zeros(4))
-    #: (4,) whether the data pulls each estimated parameter back when the solve
-    #: starts away from the estimate (:func:`data_moves`); True for held ones.
-    moved: np.ndarray = field(default_factory=lambda: np.ones(4, dtype=bool))
+    problem: FallbackProblem = field(repr=False, compare=False)  # the problem solved
+    base: FreeParameters  # the parameters the camera model has
+
+    @property
+    def tolerances(self) -> np.ndarray:
+        """(4,) the std of θ below which a parameter counted as determined."""
+        return self.problem.tolerances
+
+    @cached_property
+    def held_shift(self) -> np.ndarray:
+        """(4,) how much each estimated θ moves when the held values are moved by their
+        std (:func:`held_value_sensitivity`; zero where nothing is held)."""
+        if self.problem.method == "direct" or not (
+            0 < self.free_parameters.dimension < self.base.dimension
+        ):
+            return np.zeros(4)
+        return held_value_sensitivity(
+            self.problem, self.free_parameters, self.base, self.solution.theta
+        )
+
+    @cached_property
+    def relative_std(self) -> np.ndarray:
+        """(4,) std of θ of ``solution``, its ties and holds counted as uncertain: to first
+        order through the information (:func:`intrinsics.solve.observability.effective_std`),
+        and beyond it by :attr:`held_shift`; the larger of the two. Meaningful for the
+        estimated parameters."""
+        problem, solution = self.problem, self.solution
+        std = effective_std(
+            solution.information,
+            self.free_parameters,
+            self.base,
+            problem.start,
+            problem.held,
+            problem.held_std,
+        )
+        if problem.method != "direct" and 0 < self.free_parameters.dimension < self.base.dimension:
+            finite = np.isfinite(solution.relative_std)
+            conditional = np.where(finite, solution.relative_std, np.inf)
+            std = np.maximum(std, np.hypot(conditional, self.held_shift))
+        return np.asarray(std)
+
+    @cached_property
+    def moved(self) -> np.ndarray:
+        """(4,) whether the data pulls each estimated parameter back when the solve
+        starts away from the estimate (:func:`data_moves`); True for held ones."""
+        if self.problem.method == "direct" or self.free_parameters.dimension == 0:
+            return np.ones(4, dtype=bool)
+        return data_moves(self.problem, self.free_parameters, self.solution.theta)
 
 
 @dataclass(frozen=True)
@@ -128,18 +169,7 @@ def solve_with_fallback(problem: FallbackProblem, base: FreeParameters) -> Fallb
             break
         free_parameters = reduced
         solution = problem.solve(problem.parametrization(free_parameters), span=span)
-    std = effective_std(solution.information, free_parameters, base, start, held, problem.held_std)
-    shift = np.zeros(4)
-    if method != "direct" and 0 < free_parameters.dimension < base.dimension:
-        shift = held_value_sensitivity(problem, free_parameters, base, solution.theta)
-        conditional = np.where(np.isfinite(solution.relative_std), solution.relative_std, np.inf)
-        std = np.maximum(std, np.hypot(conditional, shift))
-    moved = np.ones(4, dtype=bool)
-    if method != "direct" and free_parameters.dimension > 0:
-        moved = data_moves(problem, free_parameters, solution.theta)
-    return FallbackSolution(
-        solution, free_parameters, unconstrained, std, problem.tolerances, shift, moved
-    )
+    return FallbackSolution(solution, free_parameters, unconstrained, problem, base)
 
 
 #: :func:`data_moves` starts this many tolerances away from the estimate ...
