@@ -1,18 +1,18 @@
 """Order-preserving map over worker threads or forked processes, with a progress bar;
 BLAS kept single-threaded.
 
-Most of the calibration's parallel jobs (the focal search, the lens search, the
-diagnosis) spend their time in OpenCV, which releases the GIL, so threads use every
-core: nothing is pickled and no process starts. A triplet's projective refinement
-(the tensors) is a Levenberg–Marquardt loop over small numpy arrays, Python and
-per-call overhead that holds the GIL: two threads ran it no faster than one. Its jobs
-run in forked processes instead (``processes=True``), where forking is safe
-(:func:`can_fork`): the children inherit the jobs and the calibration's state with
-the fork, and only their results are pickled back. So do the other per-triplet numpy
-jobs from ``MIN_FORKED_JOBS`` triplets on (the polish's and the lens stage's
-projective refits, calibrated cameras and Schur complements; the plane parallax that
-weighs candidate triplets). The evaluation's many independent
-calibrations use processes of their own (:mod:`..evaluation.runner`).
+The lens search's and the diagnosis's jobs spend their time in OpenCV, which releases
+the GIL, so threads use every core: nothing is pickled and no process starts. A
+triplet's projective refinement (the tensors) is a Levenberg–Marquardt loop over small
+numpy arrays, Python and per-call overhead that holds the GIL: two threads ran it no
+faster than one. Its jobs run in forked processes instead (``processes=True``), where
+forking is safe (:func:`can_fork`): the children inherit the jobs and the
+calibration's state with the fork, and only their results are pickled back. So do the
+focal search's (its calibrated hypotheses wrap OpenCV's RANSACs in numpy that holds
+the GIL), and the other per-triplet numpy jobs from ``MIN_FORKED_JOBS`` triplets on
+(the polish's and the lens stage's projective refits, calibrated cameras and Schur
+complements; the plane parallax that weighs candidate triplets). The evaluation's many
+independent calibrations use processes of their own (:mod:`..evaluation.runner`).
 """
 
 from __future__ import annotations

@@ -230,7 +230,8 @@ def search_lens(
         rng: draws the focal search's track subsets.
         threshold_px: the focal search's inlier threshold, pixels.
         image_size: (width, height), pixels.
-        workers: threads (None: one per core).
+        workers: threads of the epipolar costs, processes of the focal search (None: one
+            per core).
         centre: (2,) the warps' centre, pixels (None: the start's principal point).
     """
     centre = np.asarray(start[2:4] if centre is None else centre, float)
@@ -244,10 +245,7 @@ def search_lens(
     ]
     grids = {DIVISION: np.array(LAMBDAS), POLYNOMIAL: np.array(KAPPAS)}
     costs, unwarped = _grid_costs(pairs, centre, scale, grids, workers)
-    refined = {
-        family: _refined_minimum(pairs, centre, scale, family, grid, costs[family])
-        for family, grid in grids.items()
-    }
+    refined = _refined_minima(pairs, centre, scale, grids, costs, workers)
     coarse = {
         family: grid
         for family, grid in grids.items()
@@ -299,23 +297,31 @@ def _grid_costs(
     return costs, unwarped
 
 
-def _refined_minimum(
+def _refined_minima(
     pairs: list[tuple[np.ndarray, np.ndarray]],
     centre: np.ndarray,
     scale: float,
-    family: str,
-    grid: np.ndarray,
-    costs: np.ndarray,
-) -> tuple[float, float]:
-    """A family's best parameter (the parabola through its grid minimum and neighbours)
-    and its epipolar cost (the grid's own where the parabola stays on the grid)."""
-    best = int(np.argmin(costs))
-    parameter = float(grid[best])
-    if 0 < best < len(grid) - 1:
-        parameter = _parabola_minimum(grid[best - 1 : best + 2], costs[best - 1 : best + 2])
-    if parameter == grid[best]:
-        return parameter, float(costs[best])
-    return parameter, _epipolar_cost(pairs, centre, scale, family, parameter)
+    grids: dict[str, np.ndarray],
+    costs: dict[str, np.ndarray],
+    workers: int | None,
+) -> dict[str, tuple[float, float]]:
+    """Each family's best parameter (the parabola through its grid minimum and
+    neighbours) and its epipolar cost: the grid's own where the parabola stays on the
+    grid, else evaluated (the families' together, over ``workers`` threads)."""
+    evaluated: dict[str, dict[float, float]] = {}
+    minima = {}
+    for family, grid in grids.items():
+        best = int(np.argmin(costs[family]))
+        parameter = float(grid[best])
+        if 0 < best < len(grid) - 1:
+            parameter = _parabola_minimum(
+                grid[best - 1 : best + 2], costs[family][best - 1 : best + 2]
+            )
+        minima[family] = parameter
+        evaluated[family] = {float(grid[best]): float(costs[family][best])}
+    wanted = [(family, value) for family, value in minima.items() if value not in evaluated[family]]
+    _evaluate(pairs, centre, scale, wanted, evaluated, workers)
+    return {family: (value, evaluated[family][value]) for family, value in minima.items()}
 
 
 def _finer_minima(

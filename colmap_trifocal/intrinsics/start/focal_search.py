@@ -199,14 +199,25 @@ class _Grid:
     def costs(
         self, focals: np.ndarray, count: int, iterations: tuple[int, int] = (100, 1000)
     ) -> np.ndarray:
-        """(triplets, focals) cost of each candidate focal length on ``count`` tracks."""
+        """(triplets, focals) cost of each candidate focal length on ``count`` tracks.
+
+        One job per triplet, in forked processes (:func:`..common.parallel.map_jobs`):
+        OpenCV's RANSACs release the GIL, but the pose recovery, triangulation and
+        transfer errors around them are numpy that holds it, and two threads ran the
+        search on 1.3–1.6 cores (docs/accuracy.md, thirty-third session)."""
         jobs = [
             (x[:, :count], focals, self.principal_point, self.threshold_px, *iterations)
             for x in self.subsets
         ]
-        return np.array(
-            map_jobs(_costs_job, jobs, self.workers, "focal search", progress=self.progress)
+        costs = map_jobs(
+            _costs_job,
+            jobs,
+            self.workers,
+            "focal search",
+            progress=self.progress,
+            processes=True,
         )
+        return np.array(costs)
 
 
 def search_focal(
