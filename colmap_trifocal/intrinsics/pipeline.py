@@ -83,11 +83,11 @@ class Finished:
 @dataclass
 class Warped:
     """A run on the lens search's warped tracks: its inputs (warped), the warp's focal
-    search, and what it finished with (the lens stage having adjusted the stored
-    model's distortion from the raw tracks)."""
+    search (a clear warp's: never None), and what it finished with (the lens stage
+    having adjusted the stored model's distortion from the raw tracks)."""
 
     inputs: AttemptInputs
-    search: FocalSearchResult
+    search: FocalSearchResult | None
     finished: Finished
 
 

@@ -181,7 +181,7 @@ def test_a_warp_undistorts_keypoints_and_tracks_alike(camera) -> None:
         parameter=-0.2,
         centre=centre,
         scale=scale,
-        focal=None,  # type: ignore[arg-type]
+        focal=None,
         grid=np.array([-0.2]),
         costs=np.array([1.0]),
         ratio=2.0,

@@ -26,9 +26,10 @@ explain the matches, whatever the focal length: for each parameter of
 robust fundamental matrix (OpenCV's USAC) on the warped tracks, and the warp costs the
 truncated Sampson errors summed over the pairs (each error scaled back to the raw
 pixels by the warp's magnification there). The family with the lower grid minimum is
-kept, a parabola through its minimum and neighbours gives the parameter, and the
-focal search (:func:`intrinsics.start.focal_search.search_focal`) runs on the tracks warped with it.
-The warp is taken when the unwarped tracks cost :data:`CLEAR_RATIO` times more.
+kept, and a parabola through its minimum and neighbours gives the parameter. The warp
+is taken when the unwarped tracks cost :data:`CLEAR_RATIO` times more; only then does
+the focal search (:func:`intrinsics.start.focal_search.search_focal`) run on the
+tracks warped with it.
 
 The warp only lets the tensors and the solve see nearly pinhole tracks: the camera's
 own model (``SIMPLE_RADIAL`` k, ``RADIAL`` k1 k2, ``OPENCV`` k1 k2 p1 p2) is adjusted
@@ -100,7 +101,8 @@ class LensSearchResult:
         parameter: the best warp's λ or κ (0: none).
         centre: (2,) the warp's centre, pixels.
         scale: s, the distance from ``centre`` to the farthest image corner, pixels.
-        focal: the focal search on the tracks warped with ``parameter``.
+        focal: the focal search on the tracks warped with ``parameter``; None where
+            the warp is not :attr:`clear` (nothing would use it).
         grid: (m,) every parameter of ``family`` evaluated; ``costs`` (m,) its
             epipolar cost.
         ratio: the cost of the unwarped tracks over the cost at ``parameter``.
@@ -112,7 +114,7 @@ class LensSearchResult:
     parameter: float
     centre: np.ndarray
     scale: float
-    focal: FocalSearchResult
+    focal: FocalSearchResult | None
     grid: np.ndarray
     costs: np.ndarray
     ratio: float
@@ -260,19 +262,23 @@ def search_lens(
     alternative = None
     if refined[other][0] != 0.0 and unwarped >= CLEAR_RATIO * refined[other][1]:
         alternative = (other, refined[other][0])
-    warped = [radial_undistort(x, centre, scale, family, parameter) for x in tracks]
-    focal = search_focal(warped, start, rng, threshold_px, workers=workers, image_size=image_size)
-    return LensSearchResult(
+    found = LensSearchResult(
         family=family,
         parameter=parameter,
         centre=centre,
         scale=scale,
-        focal=focal,
+        focal=None,
         grid=grid,
         costs=costs[family],
         ratio=unwarped / max(cost, 1e-12),
         alternative=alternative,
     )
+    if found.clear:
+        warped = [found.undistort(x) for x in tracks]
+        found.focal = search_focal(
+            warped, start, rng, threshold_px, workers=workers, image_size=image_size
+        )
+    return found
 
 
 def _grid_costs(

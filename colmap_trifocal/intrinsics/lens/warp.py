@@ -65,11 +65,11 @@ def find_warp(
         centre,
     )
     logger.info(
-        "camera %d: lens search%s: %s, %.1f px (the unwarped tracks cost %.1fx; %s)",
+        "camera %d: lens search%s: %s%s (the unwarped tracks cost %.1fx; %s)",
         camera.camera_id,
         "" if centre is None else " about the image centre",
         found.describe(),
-        found.focal.focal,
+        "" if found.focal is None else f", {found.focal.focal:.1f} px",
         found.ratio,
         "used" if found.clear else "not clear: not used",
     )
