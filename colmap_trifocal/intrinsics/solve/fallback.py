@@ -47,13 +47,20 @@ class FallbackSolution:
         """(4,) the std of θ below which a parameter counted as determined."""
         return self.problem.tolerances
 
+    @property
+    def partly_held(self) -> bool:
+        """Whether a robust method estimated some of the model's parameters and held or
+        tied the others (what the held values' std then moves is part of the std)."""
+        return (
+            self.problem.method != "direct"
+            and 0 < self.free_parameters.dimension < self.base.dimension
+        )
+
     @cached_property
     def held_shift(self) -> np.ndarray:
         """(4,) how much each estimated θ moves when the held values are moved by their
         std (:func:`held_value_sensitivity`; zero where nothing is held)."""
-        if self.problem.method == "direct" or not (
-            0 < self.free_parameters.dimension < self.base.dimension
-        ):
+        if not self.partly_held:
             return np.zeros(4)
         return held_value_sensitivity(
             self.problem, self.free_parameters, self.base, self.solution.theta
@@ -74,7 +81,7 @@ class FallbackSolution:
             problem.held,
             problem.held_std,
         )
-        if problem.method != "direct" and 0 < self.free_parameters.dimension < self.base.dimension:
+        if self.partly_held:
             finite = np.isfinite(solution.relative_std)
             conditional = np.where(finite, solution.relative_std, np.inf)
             std = np.maximum(std, np.hypot(conditional, self.held_shift))
