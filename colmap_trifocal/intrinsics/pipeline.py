@@ -43,7 +43,6 @@ from .lens.distortion import DistortionInput, LensDistortion, LensStart, estimat
 from .lens.search import LensSearchResult
 from .lens.warp import (
     bent_tracks_finding,
-    distortion_start,
     find_warp,
     lens_search_applies,
     warped_input,
@@ -412,9 +411,7 @@ def _through_lens_search(raw: AttemptInputs) -> LensRoute:
     finished = _finish(
         run.inputs,
         run.best,
-        lambda intrinsics: LensStart(
-            by_images, distortion_start(camera, warp, by_images, intrinsics)
-        ),
+        lambda intrinsics: LensStart(by_images, warp, intrinsics),
     )
     if finished.lens is None or not finished.lens.present:
         logger.info(

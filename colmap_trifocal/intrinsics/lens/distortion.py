@@ -65,6 +65,7 @@ from .fit_statistics import (
     jackknife_std,
     screen_statistic,
 )
+from .search import LensSearchResult, polynomial_start
 
 #: Probability that the test finds distortion in an undistorted lens (χ² tail): low
 #: power costs more than a false alarm, whose joint estimate is still unbiased and
@@ -91,6 +92,9 @@ FIRST_CHECK_ITERATIONS = 50
 MIN_TRIPLETS = 2
 #: The model a pinhole camera's distortion is looked for with (its own focal lengths).
 _DETECTION_MODELS = {"SIMPLE_PINHOLE": "SIMPLE_RADIAL", "PINHOLE": "OPENCV"}
+#: Radial terms (k1[, k2]) of the models the lens route adjusts from a warp, COLMAP's
+#: order (they come first among the model's distortion parameters).
+RADIAL_PARAMETERS = {"SIMPLE_RADIAL": 1, "RADIAL": 2, "OPENCV": 2}
 #: A stored model and the next one with one more radial term, fitted where the stored
 #: model finds distortion: a real lens (a drone's, a wide phone's) often needs k2, and a
 #: k1-only fit then takes up the rest with the focal length (docs/lenses.md).
@@ -103,11 +107,29 @@ class LensStart:
 
     Attributes:
         tracks: per triplet (image ids), its tracks (3, n, 2) as observed, pixels.
-        distortion: the stored model's extra parameters to start from (COLMAP's order).
+        warp: the lens search's warp the tracks the tensors saw were undone with.
+        intrinsics: (fx, fy, cx, cy) the lens stage starts from, pixels.
     """
 
     tracks: dict[tuple[int, int, int], np.ndarray]
-    distortion: np.ndarray
+    warp: LensSearchResult
+    intrinsics: np.ndarray
+
+    def distortion(self, model: str) -> np.ndarray:
+        """``model``'s extra parameters (COLMAP's order) nearest the warp at
+        :attr:`intrinsics`: its radial terms (:data:`RADIAL_PARAMETERS`) fitted out to the
+        farthest raw track, the rest 0. Each model starts from its own nearest
+        polynomial: a ``RADIAL`` fit started at the one-term k1 with k2 = 0 starts
+        further from a strong lens's optimum, and takes longer to reach it
+        (docs/lenses.md, "Each model's own start")."""
+        warp = self.warp
+        farthest = max(
+            float(np.max(np.linalg.norm(x - warp.centre, axis=-1))) for x in self.tracks.values()
+        )
+        radial = polynomial_start(warp, self.intrinsics, RADIAL_PARAMETERS[model], farthest)
+        start = np.zeros(len(CameraInfo.blank(model).distortion))
+        start[: len(radial)] = radial
+        return start
 
 
 @dataclass
@@ -325,13 +347,9 @@ def _richer_fit(
     refined: Refined,
     richer: str,
 ) -> LensDistortion | None:
-    """``richer``'s fit of the same triplets (its extra terms started at 0), None where
-    its adjustment fails."""
-    if lens.observed is not None:  # the warp's polynomial, its new term at 0
-        terms = len(CameraInfo.blank(richer).distortion)
-        start = np.zeros(terms)
-        start[: len(lens.observed.distortion)] = lens.observed.distortion
-        lens = replace(lens, observed=replace(lens.observed, distortion=start))
+    """``richer``'s fit of the same triplets (started from the warp's nearest polynomial
+    with its terms on the lens route, else with its extra terms at 0), None where its
+    adjustment fails."""
     adjustment = _adjust(lens, fits, mask, intrinsics, refined, richer)
     return None if adjustment is None else _fitted(lens, adjustment, intrinsics, significance=None)
 
@@ -433,7 +451,7 @@ def _adjust(
         keypoints = [
             inlier_pixels(fit.tensor, observed.tracks, MAX_TRACKS) for fit in fits.observed
         ]
-        raw = RawObservations(keypoints, observed.distortion)
+        raw = RawObservations(keypoints, observed.distortion(camera_model))
     size = (camera.width, camera.height)
     shared = shared_camera(fits.observed, fits.cameras, intrinsics, camera_model, size, raw)
     if shared is None:
@@ -537,9 +555,10 @@ def _fitted(
         # Two cameras explain the tracks: the warp's (``estimate``, on which the tensors
         # agreed) and the model's closest; the warp's is reported, with the warp's
         # nearest polynomial, each std at least the distance between the two.
-        reported, distortion_reported = intrinsics, observed.distortion
+        nearest = observed.distortion(adjustment.camera_model)
+        reported, distortion_reported = intrinsics, nearest
         intrinsics_std = np.maximum(intrinsics_std, np.abs(fitted.intrinsics - intrinsics))
-        distortion_std = np.maximum(distortion_std, np.abs(params[extra] - observed.distortion))
+        distortion_std = np.maximum(distortion_std, np.abs(params[extra] - nearest))
     return LensDistortion(
         camera_model=adjustment.camera_model,
         intrinsics=reported,

@@ -5,11 +5,11 @@ Where most tensors disagree at the first start on a camera that holds no distort
 (:mod:`.search`) looks for a radial warp (division or polynomial). This module says
 when the search applies (:func:`lens_search_applies`), runs it with the camera's seed
 (:func:`find_warp`), warps the keypoints and tracks with a warp (:func:`warped_input`),
-gives the stored model's distortion nearest a warp for the lens stage to start from
-(:func:`distortion_start`), and words the diagnosis where the raw tracks are bent but
-no warp made the tensors agree (:func:`bent_tracks_finding`). The pipeline
-(:mod:`..pipeline`) runs the warped attempts. Pixels in COLMAP's convention (the
-centre of the top-left pixel at (0.5, 0.5)).
+and words the diagnosis where the raw tracks are bent but no warp made the tensors agree
+(:func:`bent_tracks_finding`). The pipeline (:mod:`..pipeline`) runs the warped
+attempts; the lens stage starts from the warp's nearest polynomial
+(:class:`.distortion.LensStart`). Pixels in COLMAP's convention (the centre of the
+top-left pixel at (0.5, 0.5)).
 """
 
 from __future__ import annotations
@@ -21,12 +21,8 @@ from ...database.cameras import CameraInfo
 from ..inputs.camera_input import CameraInput
 from ..inputs.triplet_selection import CameraTracks
 from ..options import CalibrationOptions
-from .distortion import distortion_model
-from .search import LensSearchResult, polynomial_start, search_lens
-
-#: Radial terms (k1[, k2]) of the stored models the lens search can start, COLMAP's
-#: order (they come first among the model's distortion parameters).
-RADIAL_PARAMETERS = {"SIMPLE_RADIAL": 1, "RADIAL": 2, "OPENCV": 2}
+from .distortion import RADIAL_PARAMETERS, distortion_model
+from .search import LensSearchResult, search_lens
 
 
 def lens_search_applies(camera: CameraInfo, method: str, options: CalibrationOptions) -> bool:
@@ -85,24 +81,6 @@ def warped_input(
         tracks.triplets, [warp.undistort(x) for x in tracks.tracks], tracks.sequence
     )
     return CameraInput(data.camera, data.prior, keypoints, data.matches), warped
-
-
-def distortion_start(
-    camera: CameraInfo,
-    warp: LensSearchResult,
-    raw: dict[tuple[int, int, int], np.ndarray],
-    intrinsics: np.ndarray,
-) -> np.ndarray:
-    """The lens stage's model's distortion (COLMAP's order; :func:`.distortion_model`)
-    nearest the warp at ``intrinsics`` (pixels): its radial terms fitted out to the
-    farthest raw track, the rest 0."""
-    farthest = max(float(np.max(np.linalg.norm(x - warp.centre, axis=-1))) for x in raw.values())
-    model = distortion_model(camera)
-    assert model is not None
-    radial = polynomial_start(warp, intrinsics, RADIAL_PARAMETERS[model], farthest)
-    start = np.zeros(len(CameraInfo.blank(model).distortion))
-    start[: len(radial)] = radial
-    return start
 
 
 def bent_tracks_finding(search: LensSearchResult) -> str:
