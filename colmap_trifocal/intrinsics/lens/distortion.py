@@ -279,13 +279,15 @@ class _Fits:
 @dataclass(frozen=True)
 class _Adjustment:
     """The lens stage's adjustment: the shared camera, its model, what it refines, the
-    agreeing triplets and pycolmap's covariance."""
+    agreeing triplets, pycolmap's covariance, and on warped tracks the distortion it
+    started from (the warp's nearest polynomial, :meth:`LensStart.distortion`)."""
 
     shared: SharedCamera
     camera_model: str
     refined: Refined
     agreement: Agreement
     covariance: pycolmap.BACovariance | None
+    start_distortion: np.ndarray | None = None
 
 
 def estimate_distortion(lens: DistortionInput) -> LensDistortion | None:
@@ -452,6 +454,7 @@ def _adjust(
             inlier_pixels(fit.tensor, observed.tracks, MAX_TRACKS) for fit in fits.observed
         ]
         raw = RawObservations(keypoints, observed.distortion(camera_model))
+    start_distortion = None if raw is None else raw.distortion
     size = (camera.width, camera.height)
     shared = shared_camera(fits.observed, fits.cameras, intrinsics, camera_model, size, raw)
     if shared is None:
@@ -504,7 +507,7 @@ def _adjust(
         covariance = pycolmap.estimate_ba_covariance(
             pycolmap.BACovarianceOptions(), shared.reconstruction, adjuster
         )
-    return _Adjustment(shared, camera_model, refined, agreement, covariance)
+    return _Adjustment(shared, camera_model, refined, agreement, covariance, start_distortion)
 
 
 def _fitted(
@@ -555,7 +558,8 @@ def _fitted(
         # Two cameras explain the tracks: the warp's (``estimate``, on which the tensors
         # agreed) and the model's closest; the warp's is reported, with the warp's
         # nearest polynomial, each std at least the distance between the two.
-        nearest = observed.distortion(adjustment.camera_model)
+        nearest = adjustment.start_distortion
+        assert nearest is not None  # set wherever the tracks were warped
         reported, distortion_reported = intrinsics, nearest
         intrinsics_std = np.maximum(intrinsics_std, np.abs(fitted.intrinsics - intrinsics))
         distortion_std = np.maximum(distortion_std, np.abs(params[extra] - nearest))
