@@ -65,30 +65,30 @@ class Executed:
     kernel_stderr: str
     workdir: Path
 
-    def outputs(self) -> list[dict]:
-        return [o for c in self.notebook.cells if c.cell_type == "code" for o in c.outputs]
+    def cells(self, source: str = "") -> list[nbformat.NotebookNode]:
+        """The code cells whose source contains ``source`` (every code cell by default)."""
+        return [c for c in self.notebook.cells if c.cell_type == "code" and source in c.source]
+
+    def outputs(self, source: str = "") -> list[dict]:
+        """The outputs of :meth:`cells`, in order."""
+        return [o for c in self.cells(source) for o in c.outputs]
 
     def text(self, source: str = "") -> str:
-        """Everything the code cells whose source contains ``source`` printed (stdout,
-        stderr), and their plain/Markdown results."""
+        """Everything the cells of :meth:`cells` printed (stdout, stderr), and their
+        plain/Markdown results."""
         parts = []
-        for cell in self.notebook.cells:
-            if cell.cell_type != "code" or source not in cell.source:
-                continue
-            for output in cell.outputs:
-                if output.output_type == "stream":
-                    parts.append(output.text)
-                for kind in ("text/plain", "text/markdown"):
-                    parts.append(output.get("data", {}).get(kind, ""))
+        for output in self.outputs(source):
+            if output.output_type == "stream":
+                parts.append(output.text)
+            for kind in ("text/plain", "text/markdown"):
+                parts.append(output.get("data", {}).get(kind, ""))
         return "\n".join(parts)
 
     def png_outputs(self, source: str = "") -> list[bytes]:
         """The inline PNGs of the code cells whose source contains ``source``."""
         return [
             base64.b64decode(output.data["image/png"])
-            for cell in self.notebook.cells
-            if cell.cell_type == "code" and source in cell.source
-            for output in cell.outputs
+            for output in self.outputs(source)
             if "image/png" in output.get("data", {})
         ]
 
