@@ -148,7 +148,7 @@ def execute(
 
 def assert_ran_clean(run: Executed) -> None:
     """Every cell ran, none failed, nothing warned from the package, within the budget."""
-    code = [c for c in run.notebook.cells if c.cell_type == "code"]
+    code = run.cells()
     assert all(c.execution_count is not None for c in code), "a cell did not run"
     errors = [o for o in run.outputs() if o.output_type == "error"]
     assert not errors, f"{errors[0].ename}: {errors[0].evalue}"
