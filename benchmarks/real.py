@@ -29,7 +29,8 @@ that the hidden checks bring. With ``--lenses``, ``real_scenes.LENSES``: fountai
 Herz-Jesus-P8 and entry-P10 through eleven more phone-like lenses (k1 −0.2 to +0.1).
 
     python benchmarks/real.py [--scenes fountain-P11,lego-30] [--subsets | --lenses]
-        [--databases default] [--seeds 0-4] [--no-mapping] [--out benchmark_output/real]
+        [--databases default] [--seeds 0-4] [--no-mapping] [--max-triplets 20]
+        [--out benchmark_output/real]
 """
 
 from __future__ import annotations
@@ -146,9 +147,15 @@ def databases(scene: RealScene, root: Path, out: Path) -> dict[str, Path]:
     return {"default": default, "pinhole": pinhole}
 
 
-def calibrate_run(database: Path, truth: np.ndarray, start: str, seed: int) -> Run:
+def calibrate_run(
+    database: Path,
+    truth: np.ndarray,
+    start: str,
+    seed: int,
+    max_triplets: int = CalibrationOptions.max_triplets,
+) -> Run:
     prior = None if start == "guess" else prior_5(truth, seed)
-    options = CalibrationOptions(seed=seed, prior=prior)
+    options = CalibrationOptions(seed=seed, prior=prior, max_triplets=max_triplets)
     with Stopwatch() as watch:
         results = calibrate_database(database, options)
     (result,) = results  # every scene is one physical camera
@@ -368,6 +375,12 @@ def main() -> None:
         "--starts", default="guess,prior", help="guess (the stored camera), prior (±5 %%)"
     )
     parser.add_argument("--no-mapping", action="store_true", help="skip pycolmap's mapping")
+    parser.add_argument(
+        "--max-triplets",
+        type=int,
+        default=CalibrationOptions.max_triplets,
+        help="triplets per camera (default %(default)s, calibrate's)",
+    )
     parser.add_argument("--out", type=Path, default=Path("benchmark_output/real"))
     args = parser.parse_args()
     root = default_datasets_root(BENCHMARKS.parent)
@@ -393,7 +406,9 @@ def main() -> None:
                 figures.mapping = map_database(database, truth, args.out / "mapping")
             for start in args.starts.split(","):
                 for seed in seeds:
-                    figures.runs.append(calibrate_run(database, truth, start, seed))
+                    figures.runs.append(
+                        calibrate_run(database, truth, start, seed, args.max_triplets)
+                    )
             print_scene(figures)
             all_figures.append(figures)
     rows = summary(all_figures)
