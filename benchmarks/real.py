@@ -152,7 +152,7 @@ def calibrate_run(
     truth: np.ndarray,
     start: str,
     seed: int,
-    max_triplets: int = CalibrationOptions.max_triplets,
+    max_triplets: int | None = CalibrationOptions.max_triplets,
 ) -> Run:
     prior = None if start == "guess" else prior_5(truth, seed)
     options = CalibrationOptions(seed=seed, prior=prior, max_triplets=max_triplets)
@@ -388,7 +388,8 @@ def main() -> None:
     seeds = parse_seeds(args.seeds)
     print(
         f"# real scenes, {os.cpu_count()} cores, load {os.getloadavg()[0]:.2f}, "
-        f"pycolmap {pycolmap.__version__}, seeds {args.seeds}, {time.strftime('%Y-%m-%d %H:%M')}"
+        f"pycolmap {pycolmap.__version__}, seeds {args.seeds}, "
+        f"{args.max_triplets} triplets per camera, {time.strftime('%Y-%m-%d %H:%M')}"
     )
     all_figures = []
     default = SUBSETS if args.subsets else LENSES if args.lenses else SCENES
