@@ -152,7 +152,7 @@ def calibrate_run(
     truth: np.ndarray,
     start: str,
     seed: int,
-    max_triplets: int | None = CalibrationOptions.max_triplets,
+    max_triplets: int | None,
 ) -> Run:
     prior = None if start == "guess" else prior_5(truth, seed)
     options = CalibrationOptions(seed=seed, prior=prior, max_triplets=max_triplets)
