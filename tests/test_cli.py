@@ -298,16 +298,10 @@ def test_progress_bars_over_extraction_and_matching(
     images.mkdir()
     for k, view in enumerate(texture_views(7)):
         cv2.imwrite(str(images / f"{k}.png"), view)
-    # One thread and a seeded RANSAC: the build is the same every time (views of one
-    # translated plane are degenerate for verification, where RANSAC over threads and
-    # unseeded found 55, 799 or 1232 inliers for one pair from run to run).
-    options = {
-        "camera_model": "SIMPLE_RADIAL",
-        "camera_mode": mode,
-        "matcher": matcher,
-        "num_threads": 1,
-        "seed": 0,
-    }
+    # A seeded RANSAC: the build is the same every time (views of one translated plane
+    # are degenerate for verification, where RANSAC unseeded found 55, 799 or 1232
+    # inliers for one pair from run to run).
+    options = {"camera_model": "SIMPLE_RADIAL", "camera_mode": mode, "matcher": matcher, "seed": 0}
     plain = build_database(images, tmp_path / "plain.db", **options)
     capfd.readouterr()
     chunked = build_database(images, tmp_path / "chunked.db", **options, progress=True)

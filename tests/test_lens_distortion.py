@@ -320,9 +320,9 @@ def test_real_images_through_a_strong_lens_from_the_default_camera(tmp_path: Pat
     RADIAL camera adjusted from the raw tracks finds k and K (measured, seeds 0–2: f
     0.03–0.06 %, k1 −0.500 to −0.504, k2 0.105–0.117; cy, 8.6 px from the image centre,
     determined on some SIFT runs and held there on others; every value used to be held
-    at the default camera, 17 % off). The database is built on one thread with the
-    verification's RANSAC seeded, so every run reads the same matches: unseeded, they
-    changed from run to run, and so did the estimate (k2 0.102–0.117)."""
+    at the default camera, 17 % off). The database is built with the verification's
+    RANSAC seeded, so every run reads the same matches: unseeded, they changed from run
+    to run, and so did the estimate (k2 0.102–0.117)."""
     folder = strecha_root() / "fountain-P11"
     truth = ground_truth_intrinsics(folder) / 2.0
     images = _through_a_lens(folder, tmp_path / "images", truth, [-0.5, 0.1])
@@ -331,7 +331,6 @@ def test_real_images_through_a_strong_lens_from_the_default_camera(tmp_path: Pat
         tmp_path / "database.db",
         max_image_size=1536,
         camera_model="RADIAL",
-        num_threads=1,
         seed=0,
     )
     (result,) = calibrate_database(database, CalibrationOptions(no_prior=True, seed=0))

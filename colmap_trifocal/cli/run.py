@@ -92,7 +92,10 @@ def _add_stage_arguments(run: argparse.ArgumentParser) -> None:
         "default) or none (the estimate kept where the images determined it)",
     )
     run.add_argument(
-        "--seed", type=seed, default=0, help="random seed of calibration and mapping (default 0)"
+        "--seed",
+        type=seed,
+        default=0,
+        help="random seed of the matches' verification, calibration and mapping (default 0)",
     )
     run.add_argument("--database", type=Path, help="start from this database (it is copied)")
     run.add_argument(

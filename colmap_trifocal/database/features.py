@@ -7,6 +7,13 @@ time from a pairs file (``pycolmap.match_image_pairs``). pycolmap gives no callb
 one call, and reading the database while it writes would take SQLite locks of its own in
 this process. Extraction of each image and matching of each pair do not depend on the
 others, so the database holds the same cameras, features and matches either way.
+
+The images and their cameras are imported first, in the order of their names, on one
+thread (``pycolmap.import_images``, COLMAP's own reader with the extraction's camera
+settings); the extraction then fills in their features. Extraction threads write the
+images they create in the order they finish, so without the import an image's id (and
+with it every pair id) changed from build to build; with it, and a seeded verification,
+a build on any number of threads holds what a build on one thread holds.
 """
 
 from __future__ import annotations
@@ -73,10 +80,10 @@ def build_database(  # noqa: PLR0913 (COLMAP's extraction and matching settings,
         single_camera: one camera for all images (True) or one per image.
         camera_mode: one of ``CAMERA_MODES`` (overrides ``single_camera``); ``auto`` is
             what COLMAP's own tools do.
-        num_threads: threads of extraction and matching (-1: every core). With one
-            thread and a ``seed`` the database is the same on every build; with more,
-            pycolmap's threads give images their ids in the order they finish.
+        num_threads: threads of extraction and matching (-1: every core); the
+            database does not depend on it (see the module).
         seed: the random seed of the geometric verification's RANSAC (None: random).
+            With a seed the database is the same on every build.
         progress: bars of images extracted and pairs matched on stderr (the work done
             a chunk at a time, see the module docstring).
     """
@@ -90,6 +97,7 @@ def build_database(  # noqa: PLR0913 (COLMAP's extraction and matching settings,
     reader, extraction, matching, verification = _colmap_options(
         camera_model, max_image_size, num_threads, seed
     )
+    _import(database, image_dir, image_names or [], mode, reader)
     if progress:
         names = image_names or sorted(p.name for p in image_dir.iterdir() if p.is_file())
         _extract_in_chunks(database, image_dir, names, mode, reader, extraction)
@@ -137,6 +145,20 @@ def _colmap_options(
     return reader, extraction, matching, verification
 
 
+def _import(
+    database: Path,
+    image_dir: Path,
+    names: list[str],
+    mode: pycolmap.CameraMode,
+    reader: pycolmap.ImageReaderOptions,
+) -> None:
+    """A new database at ``database`` holding the images ``names`` of ``image_dir`` (every
+    image when empty) and their cameras, without features, with ids in name order."""
+    with pycolmap.Database.open(str(database)):
+        pass  # created with COLMAP's schema
+    pycolmap.import_images(database, image_dir, camera_mode=mode, image_names=names, options=reader)
+
+
 def _extract(
     database: Path,
     image_dir: Path,
@@ -176,20 +198,11 @@ def _extract_in_chunks(
     reader: pycolmap.ImageReaderOptions,
     extraction: pycolmap.FeatureExtractionOptions,
 ) -> None:
-    """``pycolmap.extract_features`` a chunk of images at a time, with a bar of images.
-
-    One camera for all images (``single``) stays one camera: later chunks take the first
-    chunk's camera (``existing_camera_id``). ``per-folder`` is one call (a chunk would
-    start a new camera in the middle of a folder).
-    """
-    shared = mode == pycolmap.CameraMode.SINGLE
-    chunks = [names] if mode == pycolmap.CameraMode.PER_FOLDER else _chunks(names)
+    """``pycolmap.extract_features`` a chunk of the imported images (:func:`_import`) at a
+    time, with a bar of images. Each image keeps the camera the import gave it."""
     with tqdm(total=len(names), desc="features: images", unit="image") as bar:
-        for chunk in chunks:
+        for chunk in _chunks(names):
             _extract(database, image_dir, list(chunk), mode, reader, extraction)
-            if shared and reader.existing_camera_id < 0:
-                with pycolmap.Database.open(str(database)) as db:
-                    reader.existing_camera_id = min(c.camera_id for c in db.read_all_cameras())
             bar.update(len(chunk))
 
 

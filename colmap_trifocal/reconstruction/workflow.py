@@ -259,6 +259,7 @@ def _features(
                 "camera_model": options.camera_model,
                 "matcher": options.matcher,
                 "camera_mode": options.camera_mode,
+                "seed": options.seed,
                 "progress": options.progress,
             },
             output=database,
