@@ -13,7 +13,9 @@ thread (``pycolmap.import_images``, COLMAP's own reader with the extraction's ca
 settings); the extraction then fills in their features. Extraction threads write the
 images they create in the order they finish, so without the import an image's id (and
 with it every pair id) changed from build to build; with it, and a seeded verification,
-a build on any number of threads holds what a build on one thread holds.
+a build on any number of threads holds what a build on one thread holds. The import
+decodes every image once more, on one thread, as COLMAP's reader does ahead of its
+extraction threads (docs/reliability.md, "Determinism").
 """
 
 from __future__ import annotations
