@@ -160,7 +160,8 @@ def scene_database_path(scene: DatasetScene, folder: Path, max_image_size: int) 
 
 
 def scene_database(scene: DatasetScene, folder: Path, max_image_size: int) -> Path:
-    """The scene's database (all its images), built on first use and reused."""
+    """The scene's database (all its images), built on first use and reused; its
+    verification seeded, so that every build of it holds the same matches."""
     folder.mkdir(parents=True, exist_ok=True)
     path = scene_database_path(scene, folder, max_image_size)
     if path.exists():
@@ -173,6 +174,7 @@ def scene_database(scene: DatasetScene, folder: Path, max_image_size: int) -> Pa
         partial,
         image_names=[v.name for v in scene.views],
         max_image_size=max_image_size,
+        seed=0,
     )
     partial.rename(path)
     return path
