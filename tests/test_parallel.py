@@ -222,6 +222,39 @@ def test_beside_not_asked_for_is_ended_and_says_nothing() -> None:
     assert out["same"] is True
 
 
+def test_a_signal_between_the_fork_and_the_workers_set_up_is_ignored_by_the_worker() -> None:
+    """A terminal's signal reaches the whole process group, forked workers included. One
+    that reaches a worker after the fork but before the worker ignores such signals (here
+    sent by an after-fork hook, which runs in that window) is discarded: the parent's
+    handler (as the command line's, raising KeyboardInterrupt) never runs in the worker,
+    which does its work; stderr stays empty (CI once saw ``Process ForkProcess-3:``
+    printed beside the command's one ``error:`` line)."""
+    run = _python(
+        """
+        import json, os, signal
+        from multiprocessing import util
+        from colmap_trifocal.common.parallel import Beside, map_jobs
+        def interrupt(signum, frame):
+            raise KeyboardInterrupt
+        for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            signal.signal(signum, interrupt)
+        class Hook:
+            pass
+        hook = Hook()  # kept alive: util holds it weakly
+        util.register_after_fork(hook, lambda _: os.kill(os.getpid(), signal.SIGHUP))
+        with Beside(os.getpid, workers=2) as beside:
+            pid = beside.result()
+        results = map_jobs(lambda job: (job, os.getpid()), list(range(40)), 3, processes=True)
+        print(json.dumps({"parent": os.getpid(), "pid": pid, "results": results}))
+        """
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stderr == ""
+    out = json.loads(run.stdout)
+    assert out["pid"] != out["parent"]
+    assert [job for job, _ in out["results"]] == list(range(40))
+
+
 @pytest.mark.real_data
 def test_lens_fits_side_by_side_give_the_same_bits(
     real_scene_database: Callable[[str, str], Path],

@@ -34,7 +34,7 @@ import cv2
 from threadpoolctl import threadpool_limits
 from tqdm import TMonitor, tqdm
 
-from .errors import CalibrationError
+from .errors import TERMINATING_SIGNALS, CalibrationError
 from .log import logger
 
 MAX_WORKERS = 8
@@ -197,7 +197,14 @@ def _forked(target: Callable[..., None], *args: Any) -> tuple[Any, Any]:
     context = multiprocessing.get_context("fork")
     receiving, sending = context.Pipe(duplex=False)
     child = context.Process(target=target, args=(*args, sending), daemon=True)
-    child.start()
+    # Held back across the fork: a signal to the process group between the fork and the
+    # child's own set-up (:func:`_in_worker`) would otherwise run the parent's handler in
+    # the child, whose KeyboardInterrupt multiprocessing reports on stderr.
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, TERMINATING_SIGNALS)
+    try:
+        child.start()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
     sending.close()
     return child, receiving
 
@@ -264,8 +271,9 @@ def _in_worker() -> queue.SimpleQueue[logging.LogRecord]:
     parent's to emit, through the parent's handlers (a test's capture, the command
     line's stderr), and only where its result is used (:class:`Beside`).
     """
-    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(signum, signal.SIG_IGN)
+    for signum in TERMINATING_SIGNALS:
+        signal.signal(signum, signal.SIG_IGN)  # discards one already held back
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, TERMINATING_SIGNALS)  # held by _forked
     records: queue.SimpleQueue[logging.LogRecord] = queue.SimpleQueue()
     logger.handlers = [logging.handlers.QueueHandler(records)]
     logger.propagate = False
