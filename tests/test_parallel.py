@@ -255,6 +255,36 @@ def test_a_signal_between_the_fork_and_the_workers_set_up_is_ignored_by_the_work
     assert [job for job, _ in out["results"]] == list(range(40))
 
 
+def test_a_signal_to_the_caller_during_a_fork_ends_the_new_worker() -> None:
+    """A signal that reaches the caller while it forks (held back there until the fork is
+    done; here sent by an after-fork hook of the parent) raises the handler's exception
+    from the fork's call, which has ended the new worker: no caller holds it yet."""
+    run = _python(
+        """
+        import json, multiprocessing, os, signal, time
+        from colmap_trifocal.common.parallel import Beside
+        def interrupt(signum, frame):
+            raise KeyboardInterrupt
+        signal.signal(signal.SIGHUP, interrupt)
+        fired = []
+        def once():
+            if not fired:
+                fired.append(True)
+                os.kill(os.getpid(), signal.SIGHUP)
+        os.register_at_fork(after_in_parent=once)
+        try:
+            Beside(lambda: time.sleep(30), workers=2)
+            outcome = "returned"
+        except KeyboardInterrupt:
+            outcome = "interrupted"
+        print(json.dumps({"outcome": outcome, "alive": len(multiprocessing.active_children())}))
+        """
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stderr == ""
+    assert json.loads(run.stdout) == {"outcome": "interrupted", "alive": 0}
+
+
 @pytest.mark.real_data
 def test_lens_fits_side_by_side_give_the_same_bits(
     real_scene_database: Callable[[str, str], Path],

@@ -204,7 +204,13 @@ def _forked(target: Callable[..., None], *args: Any) -> tuple[Any, Any]:
     try:
         child.start()
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, held)
+        try:  # a signal held back meanwhile: its handler runs (and raises) in this call
+            signal.pthread_sigmask(signal.SIG_SETMASK, held)
+        except BaseException:
+            sending.close()
+            if child.pid is not None:
+                _ended(child, receiving)  # no caller will end it
+            raise
     sending.close()
     return child, receiving
 
