@@ -351,15 +351,17 @@ def reproduce_strecha_run(
 ) -> Executed:
     """reproduce_paper on the Strecha scene (a short synthetic part: 2 runs at 0.5 px).
 
-    The scene's database comes from the shared cache, copied to the path where the
-    notebook caches it (its ``OUTPUT/databases/<N>-images`` folder): the notebook then
-    skips the SIFT build (were the path to change, it would build it, only slower).
+    The scene's database comes from the shared cache, built as ``scene_database`` builds
+    it (seed 0) and copied to the path where the notebook caches it (its
+    ``OUTPUT/databases/<N>-images`` folder): the notebook then skips the SIFT build (were
+    the path to change, it would build it, only slower).
     """
     scene_dir = strecha_root() / STRECHA_SCENE
     scene = read_scene("strecha", scene_dir)
     scene = dataclasses.replace(scene, views=scene.views[:STRECHA_IMAGES])
     size = EvaluationOptions().max_image_size
-    cached = database_cache.get(scene.image_dir, [v.name for v in scene.views], max_image_size=size)
+    names = [v.name for v in scene.views]
+    cached = database_cache.get(scene.image_dir, names, max_image_size=size, seed=0)
     workdir = tmp_path_factory.mktemp("reproduce-strecha")
     output = workdir / "reproduce_paper_output"
     folder = output / "databases" / f"{STRECHA_IMAGES}-images"
