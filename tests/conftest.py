@@ -609,6 +609,23 @@ def texture_views(count: int, seed: int = 0) -> list[np.ndarray]:
     return [texture[20:200, 8 * k : 8 * k + 240] for k in range(count)]
 
 
+#: Fewer SIFT features than this in an image, and pycolmap's CPU matcher searches its
+#: descriptors exactly (a flat FAISS index); from this many on, through an IVF index whose
+#: cells k-means trains, a build COLMAP's maintainers found not perfectly deterministic
+#: even on one thread (colmap/colmap#3874). Two builds are compared row for row only on
+#: images below it (docs/reliability.md, "Determinism").
+EXACT_SEARCH_FEATURES = 512
+
+
+def small_texture_views(count: int) -> list[np.ndarray]:
+    """:func:`texture_views` shrunk to 100 x 75 (about 250 SIFT features each, under
+    :data:`EXACT_SEARCH_FEATURES`): every pair still verifies, and two builds of them
+    hold the same matches."""
+    return [
+        cv2.resize(view, (100, 75), interpolation=cv2.INTER_AREA) for view in texture_views(count)
+    ]
+
+
 def without_root_file_access() -> None:
     """In a child process (``preexec_fn``): file permissions bind even as root.
 

@@ -290,17 +290,17 @@ def test_progress_bars_over_extraction_and_matching(
 ) -> None:
     """With ``progress`` the work goes a chunk at a time with a bar on stderr, and the
     database holds the same cameras, features and matches as one pycolmap call gives."""
-    from conftest import texture_views
+    from conftest import EXACT_SEARCH_FEATURES, small_texture_views
 
     from colmap_trifocal.database.features import build_database
 
     images = tmp_path / "images"
     images.mkdir()
-    for k, view in enumerate(texture_views(7)):
+    for k, view in enumerate(small_texture_views(7)):
         cv2.imwrite(str(images / f"{k}.png"), view)
-    # A seeded RANSAC: the build is the same every time (views of one translated plane
-    # are degenerate for verification, where RANSAC unseeded found 55, 799 or 1232
-    # inliers for one pair from run to run).
+    # A seeded RANSAC and views under pycolmap's exact-search size: the build is the same
+    # every time (views of one translated plane are degenerate for verification, where
+    # RANSAC unseeded found 55, 799 or 1232 inliers for one pair from run to run).
     options = {"camera_model": "SIMPLE_RADIAL", "camera_mode": mode, "matcher": matcher, "seed": 0}
     plain = build_database(images, tmp_path / "plain.db", **options)
     capfd.readouterr()
@@ -311,6 +311,7 @@ def test_progress_bars_over_extraction_and_matching(
     chunked_images, *chunked_matches = _by_name(chunked)
     plain_images, *plain_matches = _by_name(plain)
     assert chunked_images == plain_images
+    assert all(count < EXACT_SEARCH_FEATURES for _, count in plain_images.values())
     assert chunked_matches == plain_matches
     assert all(chunked_matches[1].values())  # every pair verified, none empty
     assert sorted(p.name for p in tmp_path.iterdir()) == ["chunked.db", "images", "plain.db"]

@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pycolmap
-from conftest import CliResult, database_rows, texture_views
+from conftest import EXACT_SEARCH_FEATURES, CliResult, database_rows, small_texture_views
 
 from colmap_trifocal.database.features import build_database
 
@@ -23,14 +23,24 @@ TABLES = ("cameras", "images", "keypoints", "descriptors", "matches", "two_view_
 
 
 def _images(folder: Path) -> Path:
-    """Seven views of one texture, the first by name five times larger (its SIFT takes
-    longest, so on two threads the others finish before it)."""
+    """Seven small views of one texture (under pycolmap's exact-search size,
+    ``conftest.EXACT_SEARCH_FEATURES``), the first by name in a corner of a plain
+    1200 x 900 canvas (its SIFT takes longest, so on two threads the others finish before
+    it)."""
     folder.mkdir()
-    for k, view in enumerate(texture_views(7)):
+    for k, view in enumerate(small_texture_views(7)):
         if k == 0:
-            view = cv2.resize(view, (1200, 900), interpolation=cv2.INTER_CUBIC)
+            canvas = np.full((900, 1200), 128, np.uint8)
+            canvas[: view.shape[0], : view.shape[1]] = view
+            view = canvas
         cv2.imwrite(str(folder / f"{k}.png"), view)
     return folder
+
+
+def _exact_search(rows: dict[str, list[tuple]]) -> bool:
+    """Whether every image of a database's rows has fewer features than pycolmap's matcher
+    searches exactly (the ``keypoints`` rows: image id, rows, ...)."""
+    return all(row[1] < EXACT_SEARCH_FEATURES for row in rows["keypoints"])
 
 
 def _ids_by_name(database: Path) -> dict[str, int]:
@@ -48,6 +58,7 @@ def test_a_build_on_two_threads_holds_what_one_thread_builds(tmp_path: Path) -> 
     )
     assert _ids_by_name(two) == {f"{k}.png": k + 1 for k in range(7)}
     rows = [database_rows(path) for path in (one, two, chunked)]
+    assert _exact_search(rows[0])
     for table in TABLES:
         assert rows[1][table] == rows[0][table], table
         assert rows[2][table] == rows[0][table], table
@@ -65,6 +76,7 @@ def test_run_builds_the_same_database_from_the_same_images_and_seed(
         result = run_main("run", images, tmp_path / name, "--refine", "none", "--seed", 3)
         assert result.returncode == 0, result.stderr
     first, second = (database_rows(tmp_path / name / "database.db") for name in ("a", "b"))
+    assert _exact_search(first)
     for table in TABLES:
         assert first[table] == second[table], table
     assert np.sum([row[1] for row in first["two_view_geometries"]]) > 0

@@ -2,10 +2,17 @@
 
 from __future__ import annotations
 
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
 import numpy as np
 import pytest
+from conftest import CliResult, small_texture_views
 
 from colmap_trifocal import CalibrationOptions, calibrate_contents
+from colmap_trifocal.database.features import build_database
 from colmap_trifocal.geometry.parallax import plane_parallax, triplet_points
 from colmap_trifocal.geometry.planarity import (
     PLANAR_SHARE,
@@ -154,3 +161,27 @@ def test_facade_triplets_agree_and_the_estimate_is_accurate_by_default() -> None
     assert result.num_inlier_triplets >= 15
     assert np.abs(result.intrinsics / truth - 1.0).mean() < 0.0008
     assert all(result.observable.values())
+
+
+def test_small_views_of_a_plane_moved_sideways_hold_the_prior(
+    tmp_path: Path, run_main: Callable[..., CliResult]
+) -> None:
+    """Six 100 x 75 views of a plane moved sideways determine nothing: ``calibrate``
+    holds the prior and says so. Its triplets' refinement takes steps that lower the cost
+    where almost no decrease was predicted; the damping update of such a step must stay
+    finite (before, the cube of their gain ratio overflowed on seeds 0, 3 and 4)."""
+    images = tmp_path / "images"
+    images.mkdir()
+    for k, view in enumerate(small_texture_views(7)[1:]):
+        cv2.imwrite(str(images / f"{k}.png"), view)
+    database = build_database(
+        images, tmp_path / "db.db", camera_model="SIMPLE_RADIAL", camera_mode="single", seed=0
+    )
+    for seed in (0, 3, 4):
+        result = run_main("calibrate", database, "--seed", seed, "--json", "-")
+        assert result.returncode == 0, result.stderr
+        assert "not determined by these images" in result.stderr
+        [camera] = json.loads(result.stdout)
+        assert camera["assumptions"] == ["fx, fy held at the prior", "cx, cy held at the prior"]
+        # COLMAP's guess: f = 1.2 · 100 px, centred
+        assert [camera[key] for key in ("fx", "fy", "cx", "cy")] == [120.0, 120.0, 50.0, 37.5]

@@ -16,6 +16,11 @@ with it every pair id) changed from build to build; with it, and a seeded verifi
 a build on any number of threads holds what a build on one thread holds. The import
 decodes every image once more, on one thread, as COLMAP's reader does ahead of its
 extraction threads (docs/reliability.md, "Determinism").
+
+One part is pycolmap's and not exactly repeatable: its CPU matcher searches the
+descriptors of an image with 512 features or more through a FAISS IVF index whose cells
+k-means trains, and that build is not perfectly deterministic (colmap/colmap#3874), so
+two builds can rarely differ in one image's matches.
 """
 
 from __future__ import annotations
@@ -85,7 +90,8 @@ def build_database(  # noqa: PLR0913 (COLMAP's extraction and matching settings,
         num_threads: threads of extraction and matching (-1: every core); the
             database does not depend on it (see the module).
         seed: the random seed of the geometric verification's RANSAC (None: random).
-            With a seed the database is the same on every build.
+            With a seed the database is the same on every build, up to pycolmap's
+            approximate descriptor search (the module's docstring).
         progress: bars of images extracted and pairs matched on stderr (the work done
             a chunk at a time, see the module docstring).
     """

@@ -302,7 +302,10 @@ def _iterate(state: _State, x: np.ndarray, scale: np.ndarray, dof: int) -> tuple
         new_cost = float(np.sum(_residuals(x, P2_new, P3_new, points_new, scale) ** 2))
         if np.isfinite(new_cost) and new_cost < state.cost:
             cost = state.cost
-            gain = (cost - new_cost) / max(predicted, 1e-300)
+            # The decrease over the predicted one, at most 1: Nielsen's update below
+            # shrinks the damping by 1/3 for any gain from 1 on, and a predicted decrease
+            # near 0 would otherwise give a gain whose cube overflows.
+            gain = min((cost - new_cost) / max(predicted, 1e-300), 1.0)
             state.P2, state.P3 = P2_new / np.linalg.norm(P2_new), P3_new / np.linalg.norm(P3_new)
             state.points = points_new
             relative_decrease = (cost - new_cost) / max(cost, 1e-300)
