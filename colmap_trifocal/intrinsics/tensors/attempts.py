@@ -14,7 +14,7 @@ pixels, COLMAP's pixel convention (the centre of the top-left pixel at (0.5, 0.5
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -263,7 +263,13 @@ def _solved_at(
     what: str,
 ) -> Attempt:
     """``best``'s tensors solved again from ``candidate`` for ``free_parameters``; the log
-    says how many tensors agree with ``what``."""
+    says how many tensors agree with ``what``.
+
+    The solve of every parameter the camera model has stays ``best``'s: it is of the same
+    tensors from the same start (held values do not enter it), and what the report calls
+    each parameter's unconstrained std; the solve for ``free_parameters`` alone would give
+    a held value's std as 0.
+    """
     logger.info(
         "camera %d: %d of %d tensors agree with %s",
         inputs.data.camera.camera_id,
@@ -271,7 +277,9 @@ def _solved_at(
         len(best.tensors.tensors),
         what,
     )
-    return Attempt(candidate, best.tensors, solve(inputs, candidate, best.tensors, free_parameters))
+    fallback = solve(inputs, candidate, best.tensors, free_parameters)
+    fallback = replace(fallback, unconstrained=best.fallback.unconstrained)
+    return Attempt(candidate, best.tensors, fallback)
 
 
 def held_at_the_start(candidate: StartCandidate, prior: np.ndarray) -> StartCandidate:
