@@ -609,11 +609,11 @@ def texture_views(count: int, seed: int = 0) -> list[np.ndarray]:
     return [texture[20:200, 8 * k : 8 * k + 240] for k in range(count)]
 
 
-#: Fewer SIFT features than this in an image, and pycolmap's CPU matcher searches its
-#: descriptors exactly (a flat FAISS index); from this many on, through an IVF index whose
-#: cells k-means trains, a build COLMAP's maintainers found not perfectly deterministic
-#: even on one thread (colmap/colmap#3874). Two builds are compared row for row only on
-#: images below it (docs/reliability.md, "Determinism").
+#: pycolmap's CPU matcher searches the descriptors of an image with fewer SIFT features
+#: than this exactly (a flat FAISS index), and of one with this many or more through an
+#: IVF index whose cells k-means trains: a build COLMAP's maintainers found not perfectly
+#: deterministic even on one thread (colmap/colmap#3874). Two builds are compared row for
+#: row only on images below it (docs/reliability.md, "Determinism").
 EXACT_SEARCH_FEATURES = 512
 
 
