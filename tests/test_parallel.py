@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import textwrap
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -283,6 +285,53 @@ def test_a_signal_to_the_caller_during_a_fork_ends_the_new_worker() -> None:
     assert run.returncode == 0, run.stderr
     assert run.stderr == ""
     assert json.loads(run.stdout) == {"outcome": "interrupted", "alive": 0}
+
+
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` exists and has not ended (a zombie has)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+
+
+def test_workers_end_with_a_caller_killed_mid_run(tmp_path: Path) -> None:
+    """A caller killed without its clean-up (SIGKILL, or a signal it does not handle: a
+    script's SIGTERM) cannot end its workers, which ignore the signals that end a run.
+    Each ends with it, rather than finishing its jobs or waiting forever to send results
+    nobody reads (a benchmark's worker was found blocked in a pipe write nine minutes
+    after its caller was terminated)."""
+    pids = tmp_path / "pids"
+    script = """
+        import os, sys, time
+        from colmap_trifocal.common.parallel import map_jobs
+        def job(k):
+            with open(sys.argv[1], "a") as f:
+                f.write(f"{os.getpid()}\\n")
+            time.sleep(0.2)
+            return k
+        map_jobs(job, list(range(200)), 2, processes=True)
+        """
+    caller = subprocess.Popen([sys.executable, "-c", textwrap.dedent(script), str(pids)])
+    workers: set[int] = set()
+    try:
+        deadline = time.monotonic() + 120
+        while not workers and time.monotonic() < deadline and caller.poll() is None:
+            if pids.exists():
+                workers = {int(pid) for pid in pids.read_text().split()} - {caller.pid}
+            time.sleep(0.05)
+        assert workers, "no worker process took a job"
+    finally:
+        caller.kill()
+        caller.wait()
+    deadline = time.monotonic() + 10
+    while any(map(_running, workers)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    left = [pid for pid in workers if _running(pid)]
+    for pid in left:
+        os.kill(pid, signal.SIGKILL)
+    assert not left, "a worker outlived its caller"
 
 
 @pytest.mark.real_data
