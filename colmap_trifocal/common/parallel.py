@@ -17,7 +17,6 @@ independent calibrations use processes of their own (:mod:`..evaluation.runner`)
 
 from __future__ import annotations
 
-import ctypes
 import logging
 import logging.handlers
 import multiprocessing
@@ -35,6 +34,7 @@ import cv2
 from threadpoolctl import threadpool_limits
 from tqdm import TMonitor, tqdm
 
+from .children import die_with_parent
 from .errors import TERMINATING_SIGNALS, CalibrationError
 from .log import logger
 
@@ -275,11 +275,15 @@ def _in_worker() -> queue.SimpleQueue[logging.LogRecord]:
 
     The signals that end a run are the parent's to handle (it stops the workers); the
     worker ends when its work is done, when the parent ends it, or with the parent
-    (:func:`_dies_with_parent`). Its records are the parent's to emit, through the
-    parent's handlers (a test's capture, the command line's stderr), and only where its
-    result is used (:class:`Beside`).
+    (:func:`.children.die_with_parent`): a parent killed without its clean-up (SIGKILL,
+    or a SIGTERM it has no handler for) cannot end it, and a worker left behind would
+    finish its jobs, then wait forever to write results to a pipe nobody reads. Its
+    records are the parent's to emit, through the parent's handlers (a test's capture,
+    the command line's stderr), and only where its result is used (:class:`Beside`).
     """
-    _dies_with_parent()
+    parent = multiprocessing.parent_process()
+    if parent is not None and parent.pid is not None:
+        die_with_parent(parent.pid)
     for signum in TERMINATING_SIGNALS:
         signal.signal(signum, signal.SIG_IGN)  # discards one already held back
     signal.pthread_sigmask(signal.SIG_UNBLOCK, TERMINATING_SIGNALS)  # held by _forked
@@ -287,28 +291,6 @@ def _in_worker() -> queue.SimpleQueue[logging.LogRecord]:
     logger.handlers = [logging.handlers.QueueHandler(records)]
     logger.propagate = False
     return records
-
-
-#: prctl(2)'s option that has the kernel send the caller a signal when its parent ends.
-PR_SET_PDEATHSIG = 1
-
-
-def _dies_with_parent() -> None:
-    """This forked worker killed (SIGKILL) when the process that forked it ends.
-
-    A parent killed without its clean-up (SIGKILL, or a signal it has no handler for: a
-    script's SIGTERM from ``kill`` or a job scheduler) cannot end its workers, and they
-    ignore the signals that end a run: one would finish its jobs, then wait forever to
-    write results to a pipe nobody reads. Linux's ``prctl(PR_SET_PDEATHSIG)`` (no Python
-    API; ctypes) ties the worker's life to its parent's; a parent that ended before the
-    call has already left the worker to another, and the worker exits at once.
-    """
-    libc = ctypes.CDLL(None, use_errno=True)
-    if libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) != 0:
-        return  # not Linux's prctl: the parent still ends the workers it outlives
-    parent = multiprocessing.parent_process()
-    if parent is not None and os.getppid() != parent.pid:
-        os._exit(1)
 
 
 def _drained(records: queue.SimpleQueue[logging.LogRecord]) -> list[logging.LogRecord]:
