@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
 
-from .common.errors import CalibrationError
+from .common.errors import CalibrationError, NoEstimate
 
 if TYPE_CHECKING:
     from .database.shared_cameras import merge_cameras
@@ -111,6 +111,7 @@ __all__ = [
     "CalibrationOptions",
     "CameraCalibration",
     "GroupCalibration",
+    "NoEstimate",
     "ReconstructOptions",
     "SkippedGroup",
     "__version__",

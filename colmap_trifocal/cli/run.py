@@ -115,6 +115,7 @@ def _add_stage_arguments(run: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Check, run the pipeline, print the report (and render the PNG); exit status 0."""
+    from ..intrinsics.results import SkippedGroup
     from ..reconstruction.workflow import RunOptions, run_inputs, run_pipeline, workspace_outputs
     from ..reconstruction.workspace import refuse_workspace_over_images
 
@@ -157,6 +158,9 @@ def run(args: argparse.Namespace) -> int:
     for camera in report["cameras"]:
         if camera["warning"] is not None:
             warn(camera["warning"])
+    for group in report["skipped_cameras"]:
+        skipped = SkippedGroup(group["camera_ids"], group["num_images"], group["skipped"])
+        warn(f"{skipped.message()}; mapped from its stored values")
     for skipped in report["skipped_images"]:  # as COLMAP skips what it cannot read
         warn(f"skipped {skipped['name']}: {skipped['reason']}")
     if args.png is not None:

@@ -22,6 +22,16 @@ class CalibrationError(RuntimeError):
     """An input problem explained in one line (no traceback for the user)."""
 
 
+class NoEstimate(CalibrationError):
+    """The images give no estimate of a camera: too few images, matches, three-view
+    tracks or parallax, not a wrong input.
+
+    ``calibrate`` stops on it like any :class:`CalibrationError`; ``run`` and
+    ``reconstruct`` map such a camera from its stored values instead, refining its focal
+    length (and distortion) while mapping, as COLMAP would have.
+    """
+
+
 @contextmanager
 def interrupts_deferred() -> Iterator[None]:
     """Hold back Ctrl-C (SIGINT), SIGTERM and SIGHUP until the block has finished.

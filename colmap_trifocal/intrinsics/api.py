@@ -25,7 +25,7 @@ from pathlib import Path
 
 import pycolmap
 
-from ..common.errors import CalibrationError
+from ..common.errors import CalibrationError, NoEstimate
 from ..common.log import logger
 from ..common.parallel import single_threaded_libraries
 from ..database.camera_groups import CameraGroup, group_cameras
@@ -242,13 +242,16 @@ def plan_groups(
     contents: DatabaseContents,
     options: CalibrationOptions,
     grouping: Mapping[int, CameraInfo] | None = None,
+    *,
+    skip_unestimated: bool = False,
 ) -> tuple[list[CameraGroup], list[SkippedGroup]]:
     """The groups to calibrate (``options.group``, ``options.camera_ids``), and those skipped.
 
     ``grouping``: the cameras the grouping compares instead of ``contents.cameras``
     (a reconstruction's, see :func:`..database.from_reconstruction.grouping_cameras`).
     A group with fewer than 3 images is skipped. Raises CalibrationError for an
-    unknown camera id, and when no group has 3 images.
+    unknown camera id, and NoEstimate when no group has 3 images (unless
+    ``skip_unestimated``: every group is then returned as skipped).
     """
     groups = group_cameras(
         contents.cameras if grouping is None else grouping,
@@ -270,13 +273,13 @@ def plan_groups(
         for g in groups
         if len(g.image_ids) < 3
     ]
-    if not ready:
+    if not ready and not skip_unestimated:
         if options.camera_ids is not None and len(groups) == 1:
             (group,) = groups
-            raise CalibrationError(
+            raise NoEstimate(
                 f"{group.describe()} has {_images(len(group.image_ids))}; at least 3 are needed"
             )
-        raise CalibrationError(
+        raise NoEstimate(
             "no camera has at least 3 images (grouped with --group "
             f"{options.group}: {len(groups)} group(s) of at most "
             f"{max((len(g.image_ids) for g in groups), default=0)} image(s))"
@@ -294,6 +297,8 @@ def calibrate_groups(
     options: CalibrationOptions,
     methods: tuple[str, ...],
     grouping: Mapping[int, CameraInfo] | None = None,
+    *,
+    skip_unestimated: bool = False,
 ) -> tuple[dict[str, list[CameraCalibration]], list[SkippedGroup]]:
     """Calibrate every group with each of ``methods``; also return the skipped groups.
 
@@ -301,13 +306,16 @@ def calibrate_groups(
 
     With several groups, one that cannot be calibrated (no triplet, no valid
     estimate, ...) is skipped with the reason while the others calibrate; when none
-    calibrates, the first group's error is raised.
+    calibrates, the first group's error is raised. With ``skip_unestimated`` a group
+    the images give no estimate of (:class:`NoEstimate`) is skipped even when it is the
+    only one, and the results may be empty (mapping then starts from the stored
+    cameras, :func:`..reconstruction.pipeline.calibrate_for_mapping`).
     """
     contents = checked_contents(contents)
     options = check_options(options)
     methods = checked_methods(methods)
     grouping = checked_grouping(grouping, contents)
-    groups, skipped = plan_groups(contents, options, grouping)
+    groups, skipped = plan_groups(contents, options, grouping, skip_unestimated=skip_unestimated)
     results: dict[str, list[CameraCalibration]] = {m: [] for m in methods}
     first_error: CalibrationError | None = None
     for group in groups:
@@ -322,9 +330,11 @@ def calibrate_groups(
                     contents, cameras[0], list(group.image_ids), options, methods
                 )
         except CalibrationError as exc:
-            if len(groups) == 1:
+            unestimated = skip_unestimated and isinstance(exc, NoEstimate)
+            if len(groups) == 1 and not unestimated:
                 raise
-            first_error = first_error or exc
+            if not unestimated:
+                first_error = first_error or exc
             logger.warning("%s skipped: %s", group.describe(), exc)
             skipped.append(SkippedGroup(list(group.camera_ids), len(group.image_ids), str(exc)))
             continue

@@ -34,18 +34,18 @@ import pycolmap
 
 from ..common.errors import CalibrationError
 from ..common.log import logger
-from ..database.cameras import PINHOLE_MODELS
+from ..database.cameras import PINHOLE_MODELS, CameraInfo
 from ..database.shared_cameras import merge_group_cameras
 from ..database.snapshot import DatabaseContents, read_database
 from ..database.sqlite_files import copy_database
 from ..database.writing import write_intrinsics
 from ..intrinsics.api import (
     CalibrationOptions,
-    calibrate_contents,
+    calibrate_groups,
     check_options,
     updated_cameras,
 )
-from ..intrinsics.results import CameraCalibration
+from ..intrinsics.results import CameraCalibration, SkippedGroup
 from .mapping import MAPPERS, REFINE_CHOICES, refine_intrinsics
 from .mapping_retries import (
     InitialPair,
@@ -142,7 +142,9 @@ def reconstruct(
     Returns:
         The largest model pycolmap's mapper made (in memory; each camera group is one
         shared ``pycolmap.Camera``, the group's first camera id), and the calibration's
-        result per camera group (``result.fx``, ``result.std``, ...).
+        result per camera group (``result.fx``, ``result.std``, ...). A group the images
+        give no estimate of (too few images or three-view tracks, a warning is logged)
+        has no result: it is mapped from its stored cameras, as COLMAP would map it.
 
     Raises:
         CalibrationError: bad input, or no model (the message says which).
@@ -158,13 +160,13 @@ def reconstruct(
     with tempfile.TemporaryDirectory(prefix="colmap-trifocal-", dir=options.workdir) as tmp:
         copy = Path(tmp) / "database.db"
         copy_database(database, copy, temporary=True)  # with what is still in its -wal
-        calibrations = calibrate_for_mapping(contents, copy, options.calibration)
+        calibrated = calibrate_for_mapping(contents, copy, options.calibration)
         if options.write:
-            store_in_user_database(database, calibrations)
-        mapped = map_calibrated(copy, image_dir, Path(tmp) / "models", calibrations, options)
+            store_in_user_database(database, calibrated.calibrations)
+        mapped = map_calibrated(copy, image_dir, Path(tmp) / "models", calibrated, options)
     if options.refine == "ba":
-        refine_calibrated(mapped.reconstruction, calibrations)
-    return mapped.reconstruction, calibrations
+        refine_calibrated(mapped.reconstruction, calibrated)
+    return mapped.reconstruction, calibrated.calibrations
 
 
 def checked_image_folder(images: Path | str | None) -> Path | None:
@@ -177,13 +179,24 @@ def checked_image_folder(images: Path | str | None) -> Path | None:
     return folder
 
 
+@dataclass(frozen=True)
+class Calibrated:
+    """The calibrate stage of a mapping: each calibrated group's result, and the groups
+    it skipped (fewer than 3 images, or no estimate from them: :class:`NoEstimate`)
+    with their cameras as stored, from which mapping starts as COLMAP's would."""
+
+    calibrations: list[CameraCalibration]
+    skipped: list[SkippedGroup] = field(default_factory=list)
+    stored: list[CameraInfo] = field(default_factory=list)
+
+
 def calibrate_for_mapping(
     contents: DatabaseContents,
     database: Path,
     options: CalibrationOptions,
     *,
     merge: bool = True,
-) -> list[CameraCalibration]:
+) -> Calibrated:
     """Calibrate ``contents`` and prepare ``database`` (a copy this tool owns) for mapping.
 
     Every camera of each group gets the estimate as its starting intrinsics (also a group
@@ -192,8 +205,16 @@ def calibrate_for_mapping(
     (:meth:`.CameraCalibration.mapping_cameras`) and the images of each group are moved
     onto its first camera (:func:`merge_group_cameras`). Without ``merge`` (a given
     model's cameras) every camera keeps its stored model.
+
+    A group the images give no estimate of is skipped with a warning (not an error: the
+    mapper may still register its images) and keeps its stored cameras, whose focal
+    length (and distortion) mapping then refines (:func:`refined_while_mapping`).
     """
-    calibrations = calibrate_contents(contents, options)
+    by_method, skipped = calibrate_groups(
+        contents, options, (options.method,), skip_unestimated=True
+    )
+    calibrations = by_method[options.method]
+    uncalibrated = [contents.cameras[c] for group in skipped for c in group.camera_ids]
     if merge:
         cameras = {i: c for r in calibrations for i, c in r.mapping_cameras().items()}
     else:
@@ -210,7 +231,7 @@ def calibrate_for_mapping(
             )
     if merge:
         merge_group_cameras(database, [list(c.camera_ids) for c in calibrations])
-    return calibrations
+    return Calibrated(calibrations, skipped, uncalibrated)
 
 
 def store_in_user_database(database: Path, calibrations: list[CameraCalibration]) -> None:
@@ -225,44 +246,55 @@ def map_calibrated(
     database: Path,
     images: Path | None,
     output: Path,
-    calibrations: list[CameraCalibration],
+    calibrated: Calibrated,
     options: ReconstructOptions,
     on_stage: StageCallback | None = None,
 ) -> Mapped:
     """Map ``database`` (prepared by :func:`calibrate_for_mapping`) with ``options.mapper``,
     holding what the calibration determined; the largest model and how it was made.
 
-    ``output`` receives the mapper's models (one folder per attempt).
+    ``output`` receives the mapper's models (one folder per attempt). Where no camera was
+    calibrated and the mapper makes no model either, the CalibrationError says why the
+    calibration skipped each group too.
     """
-    refine = refined_while_mapping(calibrations)
+    calibrations = calibrated.calibrations
+    refine = refined_while_mapping(calibrated)
     seed = options.calibration.seed
     announce(f"mapping (pycolmap {options.mapper})", on_stage)
     attempts: list[MappingAttempt] = []
     seeded: InitialPair | None = None
-    if options.mapper == "global":
-        reconstruction = global_mapping(
-            database,
-            images,
-            output,
-            refine_intrinsics_while_mapping=refine["focal_length"] or refine["principal_point"],
-            seed=seed,
-            refine_distortion=refine["distortion"],
-        )
-    else:
-        reconstruction, attempts, seeded = map_with_retries(
-            database,
-            images,
-            output,
-            refine=Refinement(
-                refine["focal_length"], refine["principal_point"], refine["distortion"]
-            ),
-            plan=RetryPlan(
-                candidate_pairs=seed_candidate_pairs(calibrations),
-                known_focal_cameras=focal_estimated_cameras(calibrations),
-            ),
-            seed=seed,
-            progress=options.progress,
-        )
+    try:
+        if options.mapper == "global":
+            reconstruction = global_mapping(
+                database,
+                images,
+                output,
+                refine_intrinsics_while_mapping=refine["focal_length"] or refine["principal_point"],
+                seed=seed,
+                refine_distortion=refine["distortion"],
+            )
+        else:
+            reconstruction, attempts, seeded = map_with_retries(
+                database,
+                images,
+                output,
+                refine=Refinement(
+                    refine["focal_length"], refine["principal_point"], refine["distortion"]
+                ),
+                plan=RetryPlan(
+                    candidate_pairs=seed_candidate_pairs(calibrations),
+                    known_focal_cameras=focal_estimated_cameras(calibrations),
+                ),
+                seed=seed,
+                progress=options.progress,
+            )
+    except CalibrationError as exc:
+        if calibrations or not calibrated.skipped:
+            raise
+        reasons = "; ".join(group.reason for group in calibrated.skipped)
+        raise CalibrationError(
+            f"{exc}; nor did the calibration estimate a camera: {reasons}"
+        ) from exc
     mapping: dict[str, Any] = {
         "mapper": options.mapper,
         "refined_while_mapping": refine,
@@ -278,31 +310,38 @@ def map_calibrated(
 
 def refine_calibrated(
     reconstruction: pycolmap.Reconstruction,
-    calibrations: list[CameraCalibration],
+    calibrated: Calibrated,
     on_stage: StageCallback | None = None,
 ) -> None:
     """The final bundle adjustment of ``run --refine ba``, in place: poses, points, focal
     lengths and principal points, and the distortion of camera models that have it."""
-    distortion = refined_while_mapping(calibrations)["distortion"]
+    distortion = refined_while_mapping(calibrated)["distortion"]
     refined = "focal lengths, principal points" + (" and distortion" if distortion else "")
     announce(f"bundle adjustment of {refined}", on_stage)
     refine_intrinsics(reconstruction, distortion=distortion)
 
 
-def refined_while_mapping(calibrations: list[CameraCalibration]) -> dict[str, bool]:
+def refined_while_mapping(calibrated: Calibrated) -> dict[str, bool]:
     """Which intrinsics mapping refines: those some camera's calibration did not determine,
-    and the distortion of camera models that have it (also in the final bundle adjustment).
+    the focal length of a camera not calibrated (its stored value, often COLMAP's guess:
+    COLMAP's mapper refines it too), and the distortion of camera models that have it
+    (also in the final bundle adjustment). pycolmap's mapper refines each for every
+    camera or for none.
 
     A held or weakly determined value held fixed through mapping would stay as wrong
     as the calibration left it; mapping that refines it ends far closer
     (docs/hard_scenes.md).
     """
-    focal = any(not (c.observable["fx"] and c.observable["fy"]) for c in calibrations)
+    calibrations, stored = calibrated.calibrations, calibrated.stored
+    focal = bool(stored) or any(
+        not (c.observable["fx"] and c.observable["fy"]) for c in calibrations
+    )
     principal = any(not (c.observable["cx"] and c.observable["cy"]) for c in calibrations)
     # TrifocalCalib undistorts with the stored parameters and never estimates them: a
     # camera model with distortion has it refined, as COLMAP's mapper does by default
     # (held at COLMAP's k = 0, a real lens biases every intrinsic; docs/limitations.md).
-    distortion = any(c.model not in PINHOLE_MODELS for c in calibrations)
+    models = [c.model for c in calibrations] + [c.model for c in stored]
+    distortion = any(model not in PINHOLE_MODELS for model in models)
     return {"focal_length": focal, "principal_point": principal, "distortion": distortion}
 
 

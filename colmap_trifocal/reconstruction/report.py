@@ -33,6 +33,9 @@ class RunReport:
         seconds: wall seconds of each stage (features, calibrate, mapping, refine).
         mapping: the mapper, what it refined and its attempts (with a ``note`` when it
             retried); empty when the estimate went into a given model.
+        skipped_cameras: the camera groups not calibrated (fewer than 3 images, or no
+            estimate from them: :meth:`..intrinsics.results.SkippedGroup.to_json`), mapped
+            from their stored values with the focal length refined while mapping.
         skipped_images: the files with an image suffix the extraction did not get
             (``name``, ``reason``), as COLMAP skips what it cannot read.
     """
@@ -47,6 +50,7 @@ class RunReport:
     cameras: list[dict[str, Any]]
     seconds: dict[str, float]
     mapping: dict[str, Any] = field(default_factory=dict)
+    skipped_cameras: list[dict[str, Any]] = field(default_factory=list)
     skipped_images: list[dict[str, str]] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
@@ -63,6 +67,7 @@ def build_report(  # noqa: PLR0913 (the report's parts: each a keyword, all from
     refine: str,
     seconds: dict[str, float],
     mapping: dict[str, Any],
+    skipped_cameras: list[dict[str, Any]] | None = None,
     skipped_images: list[dict[str, str]] | None = None,
 ) -> RunReport:
     """The report of a run that ended with ``reconstruction`` (see :class:`RunReport`).
@@ -87,6 +92,7 @@ def build_report(  # noqa: PLR0913 (the report's parts: each a keyword, all from
         cameras=cameras,
         seconds=seconds,
         mapping=mapping,
+        skipped_cameras=list(skipped_cameras or []),
         skipped_images=list(skipped_images or []),
     )
 

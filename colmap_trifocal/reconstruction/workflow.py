@@ -193,9 +193,10 @@ def _run_stages(
     stages = options.reconstruct_options()
     # One camera per group while mapping (the workspace copy only); a given model keeps
     # its camera ids.
-    calibrations = calibrate_for_mapping(
+    calibrated = calibrate_for_mapping(
         contents, database, stages.calibration, merge=options.model is None
     )
+    calibrations = calibrated.calibrations
     seconds["calibrate"] = time.perf_counter() - began
 
     began = time.perf_counter()
@@ -206,13 +207,13 @@ def _run_stages(
         apply_cameras(reconstruction, updated, require_all=False)
     else:
         with tempfile.TemporaryDirectory(dir=workspace) as tmp:
-            mapped = map_calibrated(database, images, Path(tmp), calibrations, stages, on_stage)
+            mapped = map_calibrated(database, images, Path(tmp), calibrated, stages, on_stage)
         reconstruction, mapping = mapped.reconstruction, mapped.mapping
     seconds["mapping"] = time.perf_counter() - began
 
     began = time.perf_counter()
     if options.refine == "ba":
-        refine_calibrated(reconstruction, calibrations, on_stage)
+        refine_calibrated(reconstruction, calibrated, on_stage)
     seconds["refine"] = time.perf_counter() - began
 
     write_model_atomically(reconstruction, workspace / "sparse" / "0")
@@ -224,6 +225,7 @@ def _run_stages(
         refine=options.refine,
         seconds=seconds,
         mapping=mapping,
+        skipped_cameras=[group.to_json() for group in calibrated.skipped],
         # Files with an image suffix that the extraction did not get (COLMAP skips them too).
         skipped_images=[asdict(s) for s in listing.skipped] if listing else [],
     )

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...common.errors import CalibrationError
+from ...common.errors import NoEstimate
 from ...common.log import logger
 from ...database.cameras import CameraInfo, check_supported, undistort_to_pinhole
 from ...database.snapshot import DatabaseContents
@@ -46,12 +46,12 @@ def camera_input(
     images' undistorted keypoints and verified matches.
 
     Raises:
-        CalibrationError: an unsupported model, fewer than 3 images, unusable stored
-            values or prior, or no verified match between the images.
+        CalibrationError: an unsupported model, or unusable stored values or prior.
+        NoEstimate: fewer than 3 images, or no verified match between them.
     """
     check_supported(camera)
     if len(image_ids) < 3:
-        raise CalibrationError(
+        raise NoEstimate(
             f"camera {camera.camera_id} has {len(image_ids)} image(s); at least 3 are needed"
         )
     if start_source(camera, options) == "EXIF focal length":
@@ -81,5 +81,5 @@ def camera_input(
     own = set(image_ids)
     matches = {p: m for p, m in contents.matches.items() if p[0] in own and p[1] in own}
     if not matches:
-        raise CalibrationError(f"camera {camera.camera_id}: no verified matches between its images")
+        raise NoEstimate(f"camera {camera.camera_id}: no verified matches between its images")
     return CameraInput(camera, prior, keypoints, matches)

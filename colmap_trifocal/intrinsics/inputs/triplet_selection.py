@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...common.errors import CalibrationError
+from ...common.errors import NoEstimate
 from ...common.log import logger
 from ...geometry.motion import moves_forward
 from ...geometry.tracks import (
@@ -124,7 +124,7 @@ def select_camera_triplets(
     """Triplets with enough tracks (``options.min_tracks``), at most ``options.max_triplets``.
 
     Raises:
-        CalibrationError: no triplet has enough tracks.
+        NoEstimate: no triplet has enough tracks.
     """
     camera = data.camera
     graph = MatchGraph(data.matches, {i: len(k) for i, k in data.keypoints.items()})
@@ -143,7 +143,7 @@ def select_camera_triplets(
     else:
         needed, triplets = _spread_triplets(graph, data, image_ids, options, work)
     if not triplets:
-        raise CalibrationError(
+        raise NoEstimate(
             f"camera {camera.camera_id}: no image triplet with at least {needed} three-view tracks"
         )
     tracks = [

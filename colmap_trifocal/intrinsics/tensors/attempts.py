@@ -18,7 +18,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ...common.errors import CalibrationError
+from ...common.errors import NoEstimate
 from ...common.log import logger
 from ...common.timing import StageClock
 from ..inputs.camera_input import CameraInput
@@ -327,7 +327,7 @@ def consensus(fallback: FallbackSolution) -> bool:
 
 
 def checked_estimate(best: Attempt, camera_id: int, method: str) -> np.ndarray:
-    """The estimate (fx, fy, cx, cy) in pixels, or CalibrationError when it is garbage
+    """The estimate (fx, fy, cx, cy) in pixels, or NoEstimate when it is garbage
     (not finite, a focal length ≤ 0 that tensors agree with)."""
     fallback = best.fallback
     estimate = fold_focal_sign(theta_to_intrinsics(fallback.solution.theta, best.tensors.start))
@@ -335,7 +335,7 @@ def checked_estimate(best: Attempt, camera_id: int, method: str) -> np.ndarray:
     if not (
         np.all(np.isfinite(estimate)) and min(estimate[:2]) > 0 and (best.agreeing or not checked)
     ):
-        raise CalibrationError(
+        raise NoEstimate(
             f"camera {camera_id}: no valid estimate (fx {estimate[0]:.4g}, fy "
             f"{estimate[1]:.4g}; {best.agreeing} of {len(best.tensors.tensors)} tensors agree): "
             "too little parallax or wrong matches"

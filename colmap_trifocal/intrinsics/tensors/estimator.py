@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from ...common.errors import CalibrationError
+from ...common.errors import NoEstimate
 from ...common.log import logger
 from ...common.parallel import map_jobs
 from ...geometry.tensor_estimation import TripletTensor
@@ -113,7 +113,7 @@ class TensorEstimator:
         ``start`` (whitened norm below τ there) carried over, the rest estimated.
 
         Raises:
-            CalibrationError: no triplet gives a tensor.
+            NoEstimate: no triplet gives a tensor.
         """
         count = len(self.tracks.triplets)
         by_triplet: list[TripletTensor | None] = [None] * count
@@ -136,7 +136,7 @@ class TensorEstimator:
         found = sum(t is not None for t in by_triplet)
         logger.info("camera %d: %d of %d triplets gave a tensor", self.camera_id, found, count)
         if found == 0:
-            raise CalibrationError(
+            raise NoEstimate(
                 f"camera {self.camera_id}: no triplet gave a consistent trifocal tensor"
             )
         return TensorSet(np.asarray(start, float).copy(), by_triplet, both)
