@@ -88,8 +88,12 @@ def test_no_estimate_maps_from_the_stored_camera(tmp_path: Path) -> None:
     assert results == {"msac-opt": []}
     assert [g.camera_ids for g in skipped] == [[1]]
     assert "no image triplet with at least 100000" in skipped[0].reason
-    reconstruction, calibrations = reconstruct(path, options=ReconstructOptions(calibration=needs))
+    before = sorted(p.name for p in tmp_path.iterdir()), path.read_bytes()
+    options = ReconstructOptions(calibration=needs, write=True)
+    reconstruction, calibrations = reconstruct(path, options=options)
     assert calibrations == []
+    # write=True with nothing calibrated: the database as it was, and no backup.
+    assert (sorted(p.name for p in tmp_path.iterdir()), path.read_bytes()) == before
     assert reconstruction.num_reg_images() == 8
     (mapped,) = (camera_intrinsics(c) for c in reconstruction.cameras.values())
     assert abs(stored[0] / truth[0] - 1) > 0.04

@@ -236,7 +236,11 @@ def calibrate_for_mapping(
 
 def store_in_user_database(database: Path, calibrations: list[CameraCalibration]) -> None:
     """``reconstruct(write=True)``: the estimate into the user's database (backup first, one
-    transaction, read back), then each group's images onto its first camera."""
+    transaction, read back), then each group's images onto its first camera. Nothing
+    calibrated: the database stays as it was (no backup either)."""
+    if not calibrations:
+        logger.info("no camera calibrated: %s stays as it was", database)
+        return
     written = write_intrinsics(database, updated_cameras(calibrations, determined_only=False))
     logger.info("stored the estimate in %s (backup: %s)", database, written)
     merge_group_cameras(database, [list(c.camera_ids) for c in calibrations])
