@@ -62,7 +62,16 @@ def test_a_group_of_two_images_is_mapped_with_its_focal_length_refined(
         in result.stderr.splitlines()
     )
     report = read_report(workspace)
-    assert [g["camera_ids"] for g in report["skipped_cameras"]] == [[7, 8]]
+    (group,) = report["skipped_cameras"]
+    assert (group["camera_ids"], group["skipped"], group["num_registered_images"]) == (
+        [7, 8],
+        "2 images",
+        2,
+    )
+    assert group["stored"]["fx"] == WRONG_FOCAL
+    assert abs(group["refined"]["fx"] / TRUTH[0] - 1) < 0.01
+    stored_row = next(line.split() for line in result.stdout.splitlines() if "stored" in line)
+    assert stored_row[:3] == ["7", "stored", f"{WRONG_FOCAL:.2f}"]
     assert report["mapping"]["refined_while_mapping"]["focal_length"] is True
     (camera,) = report["cameras"]
     assert camera["camera_ids"] == list(range(1, 7))

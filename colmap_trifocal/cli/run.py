@@ -179,7 +179,8 @@ def _announce(stage: str) -> None:
 
 def format_report(report: dict) -> str:
     """Human-readable summary of a run's report: per camera the TrifocalCalib estimate,
-    the refined intrinsics and their difference (pixels), then the seconds per stage."""
+    the refined intrinsics and their difference (pixels), per skipped camera group its
+    stored and refined intrinsics, then the seconds per stage."""
     from ..intrinsics.results import PARAMETER_NAMES
 
     lines = [
@@ -192,6 +193,11 @@ def format_report(report: dict) -> str:
         for label in ("trifocal", "refined", "difference"):
             values = " ".join(f"{camera[label][name]:>10.2f}" for name in PARAMETER_NAMES)
             lines.append(f"{camera['camera_id']:>6} {label:>9} {values}")
+    for group in report["skipped_cameras"]:  # mapped from their stored values
+        for label in ("stored", "refined"):
+            if group[label] is not None:
+                values = " ".join(f"{group[label][name]:>10.2f}" for name in PARAMETER_NAMES)
+                lines.append(f"{group['camera_id']:>6} {label:>9} {values}")
     for camera in report["cameras"]:
         if camera.get("mapped_model", camera["model"]) != camera["model"]:
             params = ", ".join(f"{v:+.4f}" for v in camera["distortion"])

@@ -189,6 +189,11 @@ class Calibrated:
     skipped: list[SkippedGroup] = field(default_factory=list)
     stored: list[CameraInfo] = field(default_factory=list)
 
+    def skipped_with_cameras(self) -> list[tuple[SkippedGroup, list[CameraInfo]]]:
+        """Each skipped group with its cameras as stored."""
+        by_id = {camera.camera_id: camera for camera in self.stored}
+        return [(group, [by_id[c] for c in group.camera_ids]) for group in self.skipped]
+
 
 def calibrate_for_mapping(
     contents: DatabaseContents,

@@ -16,7 +16,7 @@ import numpy as np
 import pycolmap
 
 from ..database.cameras import CameraInfo
-from ..intrinsics.results import PARAMETER_NAMES, CameraCalibration
+from ..intrinsics.results import PARAMETER_NAMES, CameraCalibration, SkippedGroup
 from .mapping import camera_intrinsics, mean_reprojection_error, registered_images_per_camera
 
 
@@ -34,8 +34,8 @@ class RunReport:
         mapping: the mapper, what it refined and its attempts (with a ``note`` when it
             retried); empty when the estimate went into a given model.
         skipped_cameras: the camera groups not calibrated (fewer than 3 images, or no
-            estimate from them: :meth:`..intrinsics.results.SkippedGroup.to_json`), mapped
-            from their stored values with the focal length refined while mapping.
+            estimate from them), mapped from their stored values with the focal length
+            refined while mapping (:func:`skipped_camera_report`).
         skipped_images: the files with an image suffix the extraction did not get
             (``name``, ``reason``), as COLMAP skips what it cannot read.
     """
@@ -67,19 +67,24 @@ def build_report(  # noqa: PLR0913 (the report's parts: each a keyword, all from
     refine: str,
     seconds: dict[str, float],
     mapping: dict[str, Any],
-    skipped_cameras: list[dict[str, Any]] | None = None,
+    skipped_cameras: list[tuple[SkippedGroup, list[CameraInfo]]] | None = None,
     skipped_images: list[dict[str, str]] | None = None,
 ) -> RunReport:
     """The report of a run that ended with ``reconstruction`` (see :class:`RunReport`).
 
     ``calibrations`` are the calibrate stage's results; a camera none of whose images
-    was registered is left out.
+    was registered is left out. ``skipped_cameras``: each group the calibration skipped,
+    with its cameras as stored.
     """
     registered = registered_images_per_camera(reconstruction)
     cameras = [
         camera_report(reconstruction, calibration, registered)
         for calibration in calibrations
         if any(c in reconstruction.cameras for c in calibration.camera_ids)
+    ]
+    skipped = [
+        skipped_camera_report(reconstruction, group, stored, registered)
+        for group, stored in skipped_cameras or []
     ]
     return RunReport(
         method=method,
@@ -92,7 +97,7 @@ def build_report(  # noqa: PLR0913 (the report's parts: each a keyword, all from
         cameras=cameras,
         seconds=seconds,
         mapping=mapping,
-        skipped_cameras=list(skipped_cameras or []),
+        skipped_cameras=skipped,
         skipped_images=list(skipped_images or []),
     )
 
@@ -135,6 +140,29 @@ def camera_report(
         "mapped_model": reconstruction.cameras[in_model[0]].model.name,
         "distortion": np.mean(distortion, axis=0).tolist(),
         "num_registered_images": sum(registered.get(c, 0) for c in ids),
+    }
+
+
+def skipped_camera_report(
+    reconstruction: pycolmap.Reconstruction,
+    group: SkippedGroup,
+    stored: list[CameraInfo],
+    registered: dict[int, int],
+) -> dict[str, Any]:
+    """One skipped group's object of the report: why it was skipped
+    (:meth:`..intrinsics.results.SkippedGroup.to_json`), its stored intrinsics (the mean
+    over its camera ids) and, where any of its images was registered, the intrinsics
+    mapping gave it (``refined``, the mean over its camera ids in the model; else None)."""
+    in_model = [c for c in group.camera_ids if c in reconstruction.cameras]
+    refined = None
+    if in_model and any(registered.get(c, 0) for c in in_model):
+        values = [camera_intrinsics(reconstruction.cameras[c]) for c in in_model]
+        refined = _named(np.mean(values, axis=0))
+    return {
+        **group.to_json(),
+        "stored": _named(np.mean([camera.intrinsics for camera in stored], axis=0)),
+        "refined": refined,
+        "num_registered_images": sum(registered.get(c, 0) for c in group.camera_ids),
     }
 
 

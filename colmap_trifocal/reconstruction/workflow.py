@@ -225,7 +225,7 @@ def _run_stages(
         refine=options.refine,
         seconds=seconds,
         mapping=mapping,
-        skipped_cameras=[group.to_json() for group in calibrated.skipped],
+        skipped_cameras=calibrated.skipped_with_cameras(),
         # Files with an image suffix that the extraction did not get (COLMAP skips them too).
         skipped_images=[asdict(s) for s in listing.skipped] if listing else [],
     )
