@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shutil
+import sqlite3
 from pathlib import Path
 
 import numpy as np
@@ -75,6 +77,22 @@ def test_refine_none_keeps_the_estimate(
     ).to_json()
     (camera,) = report["cameras"]
     np.testing.assert_allclose(_intrinsics(camera["refined"]), _intrinsics(camera["trifocal"]))
+
+
+def test_the_report_counts_the_images_mapping_left_out(
+    demo_database: tuple[Path, np.ndarray], tmp_path: Path
+) -> None:
+    """An image without verified matches is not registered: ``registered 7/8``, where the
+    mapper's model (its 7 images) said 7/7 before."""
+    source, _ = demo_database
+    copy = tmp_path / "database.db"
+    shutil.copyfile(source, copy)
+    con = sqlite3.connect(copy)
+    with con:  # image 8's verified matches gone: pair ids id1 * 2**31 - 1 + id2, id1 < id2
+        con.execute("DELETE FROM two_view_geometries WHERE pair_id % 2147483647 = 8")
+    con.close()
+    report = run_pipeline(None, tmp_path / "ws", RunOptions(database=copy)).to_json()
+    assert (report["num_registered_images"], report["num_images"]) == (7, 8)
 
 
 def test_existing_model_gets_estimate_and_refinement(

@@ -26,7 +26,8 @@ class RunReport:
 
     Attributes:
         method, mapper, refine: the run's ``--method``, ``--mapper`` and ``--refine``.
-        num_images, num_registered_images, num_points3D: the reconstruction's.
+        num_images: the images of the database the run mapped (registered or not).
+        num_registered_images, num_points3D: the reconstruction's.
         mean_reprojection_error_px: over all observations, pixels.
         cameras: one object per camera registered in the reconstruction
             (:func:`camera_report`).
@@ -62,6 +63,7 @@ def build_report(  # noqa: PLR0913 (the report's parts: each a keyword, all from
     reconstruction: pycolmap.Reconstruction,
     calibrations: list[CameraCalibration],
     *,
+    num_images: int,
     method: str,
     mapper: str,
     refine: str,
@@ -73,7 +75,8 @@ def build_report(  # noqa: PLR0913 (the report's parts: each a keyword, all from
     """The report of a run that ended with ``reconstruction`` (see :class:`RunReport`).
 
     ``calibrations`` are the calibrate stage's results; a camera none of whose images
-    was registered is left out. ``skipped_cameras``: each group the calibration skipped,
+    was registered is left out. ``num_images``: the database's images (the mapper's
+    model holds only those it registered). ``skipped_cameras``: each group the calibration skipped,
     with its cameras as stored.
     """
     registered = registered_images_per_camera(reconstruction)
@@ -90,7 +93,7 @@ def build_report(  # noqa: PLR0913 (the report's parts: each a keyword, all from
         method=method,
         mapper=mapper,
         refine=refine,
-        num_images=reconstruction.num_images(),
+        num_images=num_images,
         num_registered_images=reconstruction.num_reg_images(),
         num_points3D=reconstruction.num_points3D(),
         mean_reprojection_error_px=mean_reprojection_error(reconstruction),

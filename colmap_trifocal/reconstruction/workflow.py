@@ -220,6 +220,7 @@ def _run_stages(
     report = build_report(
         reconstruction,
         calibrations,
+        num_images=len(contents.image_camera),
         method=options.method,
         mapper=options.mapper,
         refine=options.refine,
