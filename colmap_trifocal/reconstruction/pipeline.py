@@ -9,9 +9,10 @@ database the caller already has:
 2. prepare: the estimate written into the copy as each camera's starting intrinsics, and
    the images of each group moved onto the group's first camera, so that mapping and
    bundle adjustment refine one camera per group, as the images share one lens;
-3. map: pycolmap incremental or global mapping from the copy, the intrinsics the
-   calibration determined held fixed and the others (and the distortion of models that
-   have it) refined; incremental mapping retried with relaxed initialisation on hard
+3. map: pycolmap incremental or global mapping from the copy, the intrinsics the tracks
+   gave the calibration held fixed, a focal length it held at its start (and the
+   distortion of models that have it) refined (:func:`refined_while_mapping`);
+   incremental mapping retried with relaxed initialisation on hard
    motion (:func:`.mapping_retries.map_with_retries`);
 4. refine (``refine="ba"``): the global bundle adjustment of ``run`` (focal lengths and
    principal points with poses and points); ``"none"`` (the default) keeps the estimate.
@@ -260,7 +261,8 @@ def map_calibrated(
     on_stage: StageCallback | None = None,
 ) -> Mapped:
     """Map ``database`` (prepared by :func:`calibrate_for_mapping`) with ``options.mapper``,
-    holding what the calibration determined; the largest model and how it was made.
+    holding what the tracks gave the calibration (:func:`refined_while_mapping`); the
+    largest model and how it was made.
 
     ``output`` receives the mapper's models (one folder per attempt). Where no camera was
     calibrated and the mapper makes no model either, the CalibrationError says why the
@@ -330,22 +332,30 @@ def refine_calibrated(
     refine_intrinsics(reconstruction, distortion=distortion)
 
 
-def refined_while_mapping(calibrated: Calibrated) -> dict[str, bool]:
-    """Which intrinsics mapping refines: those some camera's calibration did not determine,
-    the focal length of a camera not calibrated (its stored value, often COLMAP's guess:
-    COLMAP's mapper refines it too), and the distortion of camera models that have it
-    (also in the final bundle adjustment). pycolmap's mapper refines each for every
-    camera or for none.
+#: A calibration's ``source`` of a value the tracks did not give: held at the start.
+HELD_SOURCES = ("prior", "focal-search")
 
-    A held or weakly determined value held fixed through mapping would stay as wrong
-    as the calibration left it; mapping that refines it ends far closer
-    (docs/hard_scenes.md).
+
+def refined_while_mapping(calibrated: Calibrated) -> dict[str, bool]:
+    """Which intrinsics mapping refines: the focal length where a camera's calibration
+    held it at its start (``source`` prior or focal-search) or a camera was not
+    calibrated (its stored value, often COLMAP's guess), and the distortion of camera
+    models that have it (also in the final bundle adjustment); never the principal
+    point, as COLMAP's mapper. pycolmap's mapper refines each for every camera or for
+    none.
+
+    What the tracks gave, weakly determined or tied (fy = fx) included, is held: on the
+    real scenes where it is weak (EuRoC, lego, the temple ring, KITTI) pycolmap's
+    mapping of the same database ends further off than the calibration, and refining
+    it while mapping took the ring's PINHOLE camera from 1.02 to 4.75 % (fx and fy
+    apart); refining a principal point while mapping collapsed the KITTI drive
+    (docs/hard_scenes.md, "What mapping refines").
     """
     calibrations, stored = calibrated.calibrations, calibrated.stored
     focal = bool(stored) or any(
-        not (c.observable["fx"] and c.observable["fy"]) for c in calibrations
+        c.source.get(name) in HELD_SOURCES for c in calibrations for name in ("fx", "fy")
     )
-    principal = any(not (c.observable["cx"] and c.observable["cy"]) for c in calibrations)
+    principal = False
     # TrifocalCalib undistorts with the stored parameters and never estimates them: a
     # camera model with distortion has it refined, as COLMAP's mapper does by default
     # (held at COLMAP's k = 0, a real lens biases every intrinsic; docs/limitations.md).
