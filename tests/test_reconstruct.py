@@ -198,10 +198,10 @@ def test_mapping_holds_the_ring_s_weakly_determined_camera(
     kind: str, real_scene_database: Callable[[str, str], Path]
 ) -> None:
     """The temple ring's calibration from COLMAP's guess (every value from the tracks, fy
-    tied to fx on the PINHOLE camera, none within its 1 % tolerance): mapping holds what the tracks gave, so the model's camera
-    is the estimate, 1.0 % off. Refining it while mapping took it to 1.5 % (default) and
-    4.8 % (``PINHOLE``: fx 13.7 % off, fy 1.6 %; pycolmap's own mapping + BA of the same
-    database 4.5 % and 51 %)."""
+    tied to fx on the PINHOLE camera, none within its 1 % tolerance): mapping holds what
+    the tracks gave, so the model's camera is the estimate, 1.0 % off. Refining it while
+    mapping took it to 1.5 % (default) and 4.8 % (``PINHOLE``: fx 13.7 % off, fy 1.6 %;
+    pycolmap's own mapping + BA of the same database 4.5 % and 51 %)."""
     from real_scenes import SCENES_BY_NAME
 
     truth = np.asarray(SCENES_BY_NAME["temple-ring"].truth(shared_dataset("")), float)
