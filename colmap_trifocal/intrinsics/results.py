@@ -27,7 +27,7 @@ from ..database.camera_targets import (
     write_to_database_file,
     write_to_open_database,
 )
-from ..database.cameras import CameraInfo
+from ..database.cameras import PINHOLE_MODELS, CameraInfo
 from ..geometry.tensor_estimation import TripletTensor
 from .camera_writing import apply_cameras
 from .result_parts import (
@@ -219,17 +219,22 @@ class CameraCalibration:
 
     def mapping_cameras(self) -> dict[int, CameraInfo]:
         """camera_id -> the camera to map the group with: :meth:`updated_cameras`, except
-        where the tracks determine a lens model with one more radial term than the
-        stored one (``lens_distortion["richer_model"]``, e.g. RADIAL behind COLMAP's
-        default SIMPLE_RADIAL) on a camera that holds no distortion: that model, with
-        the estimate (that model's fit) and its fitted distortion.
+        on a camera that holds no distortion where the tracks determine a lens its model
+        cannot hold: a model with one more radial term than the stored one
+        (``lens_distortion["richer_model"]``, e.g. RADIAL behind COLMAP's default
+        SIMPLE_RADIAL), or a lens behind a model without distortion parameters
+        (``PINHOLE``: the lens stage's own fit, ``OPENCV``). That model, with the estimate
+        and its fitted distortion.
 
         A mapper refining a one-term model on such a lens trades the focal length
-        against k (docs/lenses.md); in the richer model it refines the lens it sees.
+        against k (docs/lenses.md), and a pinhole model cannot bend its tracks at all; in
+        the lens's model it refines the lens it sees.
         """
         cameras = self.updated_cameras()
         lens = self.lens_distortion or {}
         model, params = lens.get("richer_model"), lens.get("richer_params")
+        if model is None and _lens_behind_pinhole(self.model, lens):
+            model, params = lens["camera_model"], lens["params"]
         # One group, one model (merged cameras share it): all undistorted, or none changes.
         if model is None or params is None or not all(c.is_undistorted for c in self.group_cameras):
             return cameras
@@ -401,6 +406,18 @@ class SkippedGroup:
         ids = self.camera_ids
         who = f"camera {ids[0]}" if len(ids) == 1 else f"camera group {ids[0]} ({len(ids)} ids)"
         return f"{who} skipped: {self.reason}"
+
+
+def _lens_behind_pinhole(stored_model: str, lens: dict[str, Any]) -> bool:
+    """Whether the lens stage found a lens (present, not a misfit) on a camera model
+    without distortion parameters, in a model that has them."""
+    return (
+        stored_model in PINHOLE_MODELS
+        and bool(lens.get("present"))
+        and not lens.get("misfit")
+        and lens.get("camera_model") not in (None, *PINHOLE_MODELS)
+        and lens.get("params") is not None
+    )
 
 
 def _motion_hint(undetermined: list[str]) -> str:

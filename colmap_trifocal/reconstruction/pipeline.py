@@ -184,11 +184,14 @@ def checked_image_folder(images: Path | str | None) -> Path | None:
 class Calibrated:
     """The calibrate stage of a mapping: each calibrated group's result, and the groups
     it skipped (fewer than 3 images, or no estimate from them: :class:`NoEstimate`)
-    with their cameras as stored, from which mapping starts as COLMAP's would."""
+    with their cameras as stored, from which mapping starts as COLMAP's would;
+    ``models``: the camera models mapping starts from (the calibrated groups' as
+    written for mapping, :meth:`.CameraCalibration.mapping_cameras`, and the stored ones)."""
 
     calibrations: list[CameraCalibration]
     skipped: list[SkippedGroup] = field(default_factory=list)
     stored: list[CameraInfo] = field(default_factory=list)
+    models: list[str] = field(default_factory=list)
 
     def skipped_with_cameras(self) -> list[tuple[SkippedGroup, list[CameraInfo]]]:
         """Each skipped group with its cameras as stored."""
@@ -237,7 +240,8 @@ def calibrate_for_mapping(
             )
     if merge:
         merge_group_cameras(database, [list(c.camera_ids) for c in calibrations])
-    return Calibrated(calibrations, skipped, uncalibrated)
+    models = [c.model for c in cameras.values()] + [c.model for c in uncalibrated]
+    return Calibrated(calibrations, skipped, uncalibrated, models)
 
 
 def store_in_user_database(database: Path, calibrations: list[CameraCalibration]) -> None:
@@ -356,10 +360,11 @@ def refined_while_mapping(calibrated: Calibrated) -> dict[str, bool]:
         c.source.get(name) in HELD_SOURCES for c in calibrations for name in ("fx", "fy")
     )
     principal = False
-    # TrifocalCalib undistorts with the stored parameters and never estimates them: a
-    # camera model with distortion has it refined, as COLMAP's mapper does by default
-    # (held at COLMAP's k = 0, a real lens biases every intrinsic; docs/limitations.md).
-    models = [c.model for c in calibrations] + [c.model for c in stored]
+    # TrifocalCalib undistorts with the stored parameters: a camera model with distortion
+    # has it refined, as COLMAP's mapper does by default (held at COLMAP's k = 0, a real
+    # lens biases every intrinsic; docs/limitations.md), and so has a lens the tracks
+    # determined behind a model without it (mapped in the lens's model).
+    models = calibrated.models or [c.model for c in calibrations] + [c.model for c in stored]
     distortion = any(model not in PINHOLE_MODELS for model in models)
     return {"focal_length": focal, "principal_point": principal, "distortion": distortion}
 
