@@ -128,6 +128,7 @@ def test_every_subpackage_says_what_it_takes_and_gives() -> None:
 PUBLIC_API = {
     "METHODS",
     "CalibrationError",
+    "NoEstimate",
     "CalibrationOptions",
     "CameraCalibration",
     "GroupCalibration",
@@ -167,11 +168,13 @@ def test_public_api_imports_from_the_top_level(tmp_path: Path) -> None:
     from colmap_trifocal.intrinsics import api as calibrate
 
     assert set(colmap_trifocal.__all__) == PUBLIC_API
-    for name in PUBLIC_API - {"__version__", "CalibrationError"}:
+    for name in PUBLIC_API - {"__version__", "CalibrationError", "NoEstimate"}:
         module = importlib.import_module(DEFINED_IN[name]) if name in DEFINED_IN else calibrate
         assert getattr(colmap_trifocal, name) is getattr(module, name), name
     assert colmap_trifocal.CalibrationError is errors.CalibrationError
     assert issubclass(colmap_trifocal.CalibrationError, Exception)
+    assert colmap_trifocal.NoEstimate is errors.NoEstimate
+    assert issubclass(colmap_trifocal.NoEstimate, colmap_trifocal.CalibrationError)
     assert colmap_trifocal.__version__ == importlib.metadata.version("colmap-trifocal")
     contributing = (PACKAGE.parent / "CONTRIBUTING.md").read_text()
     start = contributing.index("The public API is what")
