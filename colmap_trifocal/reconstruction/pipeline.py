@@ -189,9 +189,9 @@ class Calibrated:
     written for mapping, :meth:`.CameraCalibration.mapping_cameras`, and the stored ones)."""
 
     calibrations: list[CameraCalibration]
-    skipped: list[SkippedGroup] = field(default_factory=list)
-    stored: list[CameraInfo] = field(default_factory=list)
-    models: list[str] = field(default_factory=list)
+    skipped: list[SkippedGroup]
+    stored: list[CameraInfo]
+    models: list[str]
 
     def skipped_with_cameras(self) -> list[tuple[SkippedGroup, list[CameraInfo]]]:
         """Each skipped group with its cameras as stored."""
@@ -364,8 +364,7 @@ def refined_while_mapping(calibrated: Calibrated) -> dict[str, bool]:
     # has it refined, as COLMAP's mapper does by default (held at COLMAP's k = 0, a real
     # lens biases every intrinsic; docs/limitations.md), and so has a lens the tracks
     # determined behind a model without it (mapped in the lens's model).
-    models = calibrated.models or [c.model for c in calibrations] + [c.model for c in stored]
-    distortion = any(model not in PINHOLE_MODELS for model in models)
+    distortion = any(model not in PINHOLE_MODELS for model in calibrated.models)
     return {"focal_length": focal, "principal_point": principal, "distortion": distortion}
 
 
