@@ -288,8 +288,9 @@ def _by_name(database: Path) -> tuple[dict, dict, dict]:
 def test_progress_bars_over_extraction_and_matching(
     mode: str, matcher: str, tmp_path: Path, capfd: pytest.CaptureFixture[str]
 ) -> None:
-    """With ``progress`` the work goes a chunk at a time with a bar on stderr, and the
-    database holds the same cameras, features and matches as one pycolmap call gives."""
+    """With ``progress`` the images are extracted a chunk at a time and the matching
+    workers' verified pairs are followed, with bars on stderr, and the database holds the
+    same cameras, features and matches as a build without bars."""
     from conftest import EXACT_SEARCH_FEATURES, small_texture_views
 
     from colmap_trifocal.database.features import build_database

@@ -14,8 +14,17 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pycolmap
-from conftest import EXACT_SEARCH_FEATURES, CliResult, database_rows, small_texture_views
+import pytest
+from conftest import (
+    EXACT_SEARCH_FEATURES,
+    CliResult,
+    database_rows,
+    small_texture_views,
+    texture_views,
+)
 
+from colmap_trifocal.common.errors import CalibrationError
+from colmap_trifocal.database import matching
 from colmap_trifocal.database.features import build_database
 
 #: Tables whose rows hold no ids of their own: created the same way on every build.
@@ -80,3 +89,52 @@ def test_run_builds_the_same_database_from_the_same_images_and_seed(
     for table in TABLES:
         assert first[table] == second[table], table
     assert np.sum([row[1] for row in first["two_view_geometries"]]) > 0
+
+
+def test_pairs_without_matches_come_back_from_every_worker(tmp_path: Path) -> None:
+    """Views of two textures: the pairs across them have no match, and their empty rows
+    (which pycolmap's ``read_all_matches`` leaves out) come back from the second worker's
+    copy as a build on one thread writes them."""
+    folder = tmp_path / "images"
+    folder.mkdir()
+    views = texture_views(4) + texture_views(3, seed=1)
+    for k, view in enumerate(views):
+        small = cv2.resize(view, (100, 75), interpolation=cv2.INTER_AREA)
+        cv2.imwrite(str(folder / f"{k}.png"), small)
+    options = {"camera_model": "SIMPLE_RADIAL", "camera_mode": "auto", "seed": 0}
+    one = database_rows(build_database(folder, tmp_path / "one.db", num_threads=1, **options))
+    two = database_rows(build_database(folder, tmp_path / "two.db", num_threads=2, **options))
+    assert _exact_search(one)
+    for table in TABLES:
+        assert two[table] == one[table], table
+    empty = {row[0] for row in one["matches"] if row[1] == 0}
+    # (4, 5) is in the second half of the 21 pairs, the second worker's share.
+    assert pycolmap.image_pair_to_pair_id(4, 5) in empty
+    assert len(one["matches"]) == len(one["two_view_geometries"]) == 21
+
+
+@pytest.mark.parametrize(
+    ("worker", "message"),
+    [
+        (
+            "import sys; sys.stderr.write('F1203 sift.cc:42] Check failed: boom\\n'); sys.exit(3)",
+            "matching failed: F1203 sift.cc:42] Check failed: boom (stopped, exit status 3)",
+        ),
+        (
+            "import os, signal; os.kill(os.getpid(), signal.SIGKILL)",
+            "(stopped, killed by signal 9)",
+        ),
+    ],
+)
+def test_a_worker_that_fails_is_one_error(
+    worker: str, message: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A matching worker that ends in failure (COLMAP aborts the process it runs in) is
+    one CalibrationError with the last line of its log; the workers' files are removed."""
+    images = _images(tmp_path / "images")
+    monkeypatch.setattr(matching, "_WORKER", worker)
+    with pytest.raises(CalibrationError) as error:
+        build_database(images, tmp_path / "database.db", camera_mode="auto", num_threads=2, seed=0)
+    assert message in str(error.value)
+    assert len(str(error.value).splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["database.db", "images"]

@@ -109,7 +109,7 @@ def call_in_child(
             tail.seek(max(log_path.stat().st_size - _LOG_TAIL, 0))
             lines = tail.read().decode("utf-8", "replace").strip().splitlines()
     how = f"killed by signal {-status}" if status < 0 else f"exit status {status}"
-    raise CalibrationError(f"{failure}: {_failure_reason(output, lines)} (stopped, {how})")
+    raise CalibrationError(f"{failure}: {failure_reason(output, lines)} (stopped, {how})")
 
 
 def _progress_stream() -> int:
@@ -122,7 +122,7 @@ def _progress_stream() -> int:
         return subprocess.DEVNULL
 
 
-def _failure_reason(output: Path, lines: list[str]) -> str:
+def failure_reason(output: Path, lines: list[str]) -> str:
     """Why a child writing ``output`` failed, from its log ``lines``: a full disk (what
     SQLite or the system says, or under :data:`_LOW_SPACE` bytes free), a database
     pycolmap could not write, or the log's last line."""

@@ -1,21 +1,21 @@
 """Feature extraction and matching into a COLMAP database (pycolmap SIFT).
 
-With ``progress`` the work is cut into steps, each a pycolmap call, and a bar on stderr
-moves after each one: the images are extracted a chunk at a time, and the image pairs
-COLMAP's own pair generator gives (exhaustive or sequential) are matched a chunk at a
-time from a pairs file (``pycolmap.match_image_pairs``). pycolmap gives no callback inside
-one call, and reading the database while it writes would take SQLite locks of its own in
-this process. Extraction of each image and matching of each pair do not depend on the
-others, so the database holds the same cameras, features and matches either way.
-
 The images and their cameras are imported first, in the order of their names, on one
 thread (``pycolmap.import_images``, COLMAP's own reader with the extraction's camera
 settings); the extraction then fills in their features. Extraction threads write the
 images they create in the order they finish, so without the import an image's id (and
-with it every pair id) changed from build to build; with it, and a seeded verification,
-a build on any number of threads holds what a build on one thread holds. The import
-decodes every image once more, on one thread, as COLMAP's reader does ahead of its
-extraction threads (docs/reliability.md, "Determinism").
+with it every pair id) changed from build to build. The import decodes every image once
+more, on one thread, as COLMAP's reader does ahead of its extraction threads
+(docs/reliability.md, "Determinism").
+
+The pairs COLMAP's own pair generator gives (exhaustive or sequential) are then matched
+and verified by :func:`.matching.match_pairs`: worker processes on one thread each, since
+pycolmap's matcher on several threads of one process is not repeatable. With a seed, a
+build on any number of cores holds what a build on one core holds.
+
+With ``progress`` a bar on stderr follows each stage: the images are extracted a chunk at
+a time (pycolmap gives no callback inside one call), and the matching bar follows the
+pairs the workers have verified.
 
 One part is pycolmap's and not exactly repeatable: its CPU matcher searches the
 descriptors of an image with 512 features or more through a FAISS IVF index whose cells
@@ -26,7 +26,7 @@ two builds can rarely differ in one image's matches.
 from __future__ import annotations
 
 import math
-import tempfile
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -34,6 +34,7 @@ import pycolmap
 from tqdm import tqdm
 
 from ..common.errors import CalibrationError
+from .matching import match_pairs
 
 MATCHERS = ("exhaustive", "sequential")
 #: Longest image side for SIFT, in pixels: from a size that still has features up to the
@@ -87,13 +88,13 @@ def build_database(  # noqa: PLR0913 (COLMAP's extraction and matching settings,
         single_camera: one camera for all images (True) or one per image.
         camera_mode: one of ``CAMERA_MODES`` (overrides ``single_camera``); ``auto`` is
             what COLMAP's own tools do.
-        num_threads: threads of extraction and matching (-1: every core); the
-            database does not depend on it (see the module).
+        num_threads: threads of extraction, and processes of matching (-1: every core
+            this process may use); the database does not depend on it (see the module).
         seed: the random seed of the geometric verification's RANSAC (None: random).
             With a seed the database is the same on every build, up to pycolmap's
             approximate descriptor search (the module's docstring).
-        progress: bars of images extracted and pairs matched on stderr (the work done
-            a chunk at a time, see the module docstring).
+        progress: bars of images extracted and pairs matched on stderr (see the
+            module docstring).
     """
     image_dir, database = Path(image_dir), Path(database)
     check_max_image_size(max_image_size)
@@ -102,23 +103,20 @@ def build_database(  # noqa: PLR0913 (COLMAP's extraction and matching settings,
     if matcher not in MATCHERS:
         raise CalibrationError(f"unknown matcher {matcher!r} (choose from {MATCHERS})")
     mode = _camera_mode(camera_mode, single_camera=single_camera)
-    reader, extraction, matching, verification = _colmap_options(
-        camera_model, max_image_size, num_threads, seed
-    )
+    reader, extraction = _colmap_options(camera_model, max_image_size, num_threads)
     _import(database, image_dir, image_names or [], mode, reader)
     if progress:
         names = image_names or sorted(p.name for p in image_dir.iterdir() if p.is_file())
         _extract_in_chunks(database, image_dir, names, mode, reader, extraction)
-        _match_in_chunks(database, matcher, matching, verification)
     else:
         _extract(database, image_dir, image_names or [], mode, reader, extraction)
-        match = pycolmap.match_exhaustive if matcher == "exhaustive" else pycolmap.match_sequential
-        match(
-            database,
-            matching_options=matching,
-            verification_options=verification,
-            device=pycolmap.Device.cpu,
-        )
+    match_pairs(
+        database,
+        _pairs(database, matcher),
+        seed=seed,
+        workers=_cores(num_threads),
+        progress=progress,
+    )
     return database
 
 
@@ -132,25 +130,34 @@ def _camera_mode(camera_mode: str | None, *, single_camera: bool) -> pycolmap.Ca
 
 
 def _colmap_options(
-    camera_model: str, max_image_size: int, num_threads: int, seed: int | None
-) -> tuple[
-    pycolmap.ImageReaderOptions,
-    pycolmap.FeatureExtractionOptions,
-    pycolmap.FeatureMatchingOptions,
-    pycolmap.TwoViewGeometryOptions,
-]:
-    """pycolmap's reader, extraction, matching and verification options of a build."""
+    camera_model: str, max_image_size: int, num_threads: int
+) -> tuple[pycolmap.ImageReaderOptions, pycolmap.FeatureExtractionOptions]:
+    """pycolmap's reader and extraction options of a build."""
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera_model
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.max_image_size = max_image_size
     extraction.num_threads = num_threads
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = num_threads
-    verification = pycolmap.TwoViewGeometryOptions()
-    if seed is not None:
-        verification.ransac.random_seed = seed
-    return reader, extraction, matching, verification
+    return reader, extraction
+
+
+def _cores(num_threads: int) -> int:
+    """``num_threads``, or with -1 (or any value below 1) the cores this process may use."""
+    return num_threads if num_threads > 0 else len(os.sched_getaffinity(0))
+
+
+def _pairs(database: Path, matcher: str) -> list[tuple[str, str]]:
+    """The image pairs (names) of COLMAP's ``matcher`` pair generator, with its default
+    options, in its order."""
+    with pycolmap.Database.open(str(database)) as db:
+        generator: pycolmap.PairGenerator = (
+            pycolmap.ExhaustivePairGenerator(pycolmap.ExhaustivePairingOptions(), db)
+            if matcher == "exhaustive"
+            else pycolmap.SequentialPairGenerator(pycolmap.SequentialPairingOptions(), db)
+        )
+        pairs = generator.all_pairs()
+        names = {image.image_id: image.name for image in db.read_all_images()}
+    return [(names[a], names[b]) for a, b in pairs]
 
 
 def _import(
@@ -187,7 +194,7 @@ def _extract(
     )
 
 
-#: Steps of each progress bar (at least :data:`MIN_CHUNK` images or pairs per step).
+#: Steps of the extraction's progress bar (at least :data:`MIN_CHUNK` images per step).
 PROGRESS_STEPS = 20
 MIN_CHUNK = 2
 
@@ -211,40 +218,4 @@ def _extract_in_chunks(
     with tqdm(total=len(names), desc="features: images", unit="image") as bar:
         for chunk in _chunks(names):
             _extract(database, image_dir, list(chunk), mode, reader, extraction)
-            bar.update(len(chunk))
-
-
-def _match_in_chunks(
-    database: Path,
-    matcher: str,
-    matching: pycolmap.FeatureMatchingOptions,
-    verification: pycolmap.TwoViewGeometryOptions,
-) -> None:
-    """Match the pairs COLMAP's ``matcher`` pair generator gives, a chunk at a time from a
-    pairs file next to the database (removed after), with a bar of image pairs."""
-    with pycolmap.Database.open(str(database)) as db:
-        if matcher == "exhaustive":
-            generator = pycolmap.ExhaustivePairGenerator(pycolmap.ExhaustivePairingOptions(), db)
-            pairs = generator.all_pairs()
-        else:
-            sequential = pycolmap.SequentialPairGenerator(pycolmap.SequentialPairingOptions(), db)
-            pairs = sequential.all_pairs()
-        names = {image.image_id: image.name for image in db.read_all_images()}
-        lines = [f"{names[a]} {names[b]}\n" for a, b in pairs]
-    with (
-        tempfile.TemporaryDirectory(dir=database.parent, prefix=".pairs-") as tmp,
-        tqdm(total=len(lines), desc="matching: image pairs", unit="pair") as bar,
-    ):
-        pairs_file = Path(tmp) / "pairs.txt"
-        for chunk in _chunks(lines):
-            pairs_file.write_text("".join(chunk))
-            options = pycolmap.ImportedPairingOptions()
-            options.match_list_path = pairs_file
-            pycolmap.match_image_pairs(
-                database,
-                matching_options=matching,
-                pairing_options=options,
-                verification_options=verification,
-                device=pycolmap.Device.cpu,
-            )
             bar.update(len(chunk))

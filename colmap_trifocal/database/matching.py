@@ -1,0 +1,233 @@
+"""SIFT matching and two-view verification of image pairs, repeatable on any number of cores.
+
+pycolmap's matcher on several threads of one process is not repeatable: now and then the
+first pairs its threads take up together (two pairs that share an image) lose much of
+their matches, a different share every time; on one thread it does not happen
+(docs/reliability.md, "Determinism").
+
+So each worker here is a process that matches its share of the pairs in one pycolmap call
+on one thread: the first worker in the database itself, every other one in its own copy of
+it (features only), whose matches and two-view geometries are then copied back in pair
+order. A pair's result depends only on its two images and the verification's seed, so the
+database is the one a single thread builds, whatever the number of workers.
+
+Each worker's share is one call, not many: a call builds the descriptor index of every
+image it meets once, and a call per few pairs would build them again for every call. A
+progress bar follows the pairs each worker has verified, read from its database while it
+works (a pycolmap database is in WAL mode, so reading it does not hold up its writer).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import sqlite3
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from contextlib import ExitStack
+from pathlib import Path
+
+import pycolmap
+from tqdm import tqdm
+
+from ..common.children import child_process
+from ..common.errors import CalibrationError
+from ..common.pycolmap_child import failure_reason
+from .sqlite_files import copy_database
+
+#: Fewest pairs a worker process is started for: below it, starting one costs more than
+#: it saves.
+PAIRS_PER_WORKER = 4
+#: Seconds between two readings of the workers' progress.
+POLL_S = 0.2
+
+#: A worker: die with the parent, then ``match_share(**json)`` (its log on stderr).
+_WORKER = """\
+import json, sys
+from colmap_trifocal.common.children import die_with_parent
+die_with_parent(int(sys.argv[2]))
+from colmap_trifocal.database.matching import match_share
+match_share(**json.loads(sys.argv[1]))
+"""
+
+
+def verification_options(seed: int | None) -> pycolmap.TwoViewGeometryOptions:
+    """pycolmap's default two-view verification, its RANSAC seeded with ``seed`` (None:
+    random)."""
+    verification = pycolmap.TwoViewGeometryOptions()
+    if seed is not None:
+        verification.ransac.random_seed = seed
+    return verification
+
+
+def match_share(
+    database: str, pairs_file: str, seed: int | None, minloglevel: int | None = None
+) -> None:
+    """Match and verify the image pairs listed by name in ``pairs_file`` (one pair per
+    line) in ``database``: one pycolmap call on one thread."""
+    if minloglevel is not None:
+        pycolmap.logging.minloglevel = minloglevel
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = 1
+    pairing = pycolmap.ImportedPairingOptions()
+    pairing.match_list_path = pairs_file
+    pycolmap.match_image_pairs(
+        database,
+        matching_options=matching,
+        pairing_options=pairing,
+        verification_options=verification_options(seed),
+        device=pycolmap.Device.cpu,
+    )
+
+
+def match_pairs(
+    database: Path,
+    pairs: Sequence[tuple[str, str]],
+    *,
+    seed: int | None,
+    workers: int,
+    progress: bool = False,
+) -> None:
+    """Match and verify ``pairs`` (image names) of ``database``, which holds their
+    features and no matches yet.
+
+    Args:
+        database: the COLMAP database, written in place.
+        pairs: the image pairs, in the order of COLMAP's pair generator.
+        seed: the verification's RANSAC seed (None: random).
+        workers: most worker processes (each matches on one thread).
+        progress: a bar of pairs verified on stderr.
+
+    Raises:
+        CalibrationError: a worker failed (the last line of its log says why).
+    """
+    count = max(1, min(workers, math.ceil(len(pairs) / PAIRS_PER_WORKER)))
+    with tempfile.TemporaryDirectory(dir=database.parent, prefix=".matching-") as tmp:
+        bounds = [k * len(pairs) // count for k in range(count + 1)]
+        shares = [pairs[start:end] for start, end in zip(bounds, bounds[1:], strict=False)]
+        files = [Path(tmp) / f"pairs-{k}.txt" for k in range(count)]
+        for share, path in zip(shares, files, strict=True):
+            path.write_text("".join(f"{a} {b}\n" for a, b in share))
+        if count == 1 and not progress:
+            match_share(str(database), str(files[0]), seed)
+            return
+        targets = [database] + [Path(tmp) / f"worker-{k}.db" for k in range(1, count)]
+        for target in targets[1:]:
+            copy_database(database, target, temporary=True)
+        _run_workers(targets, files, seed, len(pairs), Path(tmp), progress=progress)
+        _copy_back(database, targets[1:], shares[1:])
+
+
+def _run_workers(
+    targets: list[Path],
+    files: list[Path],
+    seed: int | None,
+    total: int,
+    tmp: Path,
+    *,
+    progress: bool,
+) -> None:
+    """One worker process per ``(target, file)``; wait for all, with a bar of pairs.
+
+    The workers' COLMAP logs are kept in files to explain a failure, and passed on to
+    stderr after they end where pycolmap's log level lets everything out."""
+    minloglevel = int(pycolmap.logging.minloglevel)
+    logs = [tmp / f"worker-{k}.log" for k in range(len(targets))]
+    try:
+        _wait_for_workers(targets, files, logs, seed, minloglevel, total, progress=progress)
+    finally:
+        if minloglevel == 0:
+            for log in logs:
+                with contextlib.suppress(OSError):
+                    sys.stderr.write(log.read_text(encoding="utf-8", errors="replace"))
+
+
+def _wait_for_workers(  # noqa: PLR0913 (the workers' files and settings)
+    targets: list[Path],
+    files: list[Path],
+    logs: list[Path],
+    seed: int | None,
+    minloglevel: int,
+    total: int,
+    *,
+    progress: bool,
+) -> None:
+    """Start the workers of :func:`_run_workers`, and wait for them."""
+    with ExitStack() as stack:
+        bar = stack.enter_context(
+            tqdm(total=total, desc="matching: image pairs", unit="pair", disable=not progress)
+        )
+        children, verified = [], [0] * len(targets)
+        for target, file, log_path in zip(targets, files, logs, strict=True):
+            arguments = {
+                "database": str(target),
+                "pairs_file": str(file),
+                "seed": seed,
+                "minloglevel": minloglevel,
+            }
+            log = stack.enter_context(log_path.open("wb"))
+            command = [sys.executable, "-c", _WORKER, json.dumps(arguments), str(os.getpid())]
+            children.append(
+                stack.enter_context(
+                    child_process(
+                        command,
+                        stdin=subprocess.DEVNULL,
+                        stdout=subprocess.DEVNULL,
+                        stderr=log,
+                    )
+                )
+            )
+        while True:
+            statuses = [child.poll() for child in children]
+            for target, log_path, status in zip(targets, logs, statuses, strict=True):
+                if status is not None and status != 0:
+                    _raise_failure(target, log_path, status)
+            if progress:
+                verified = [_verified(t, last) for t, last in zip(targets, verified, strict=True)]
+                bar.update(sum(verified) - bar.n)
+            if all(status == 0 for status in statuses):
+                bar.update(total - bar.n)
+                return
+            time.sleep(POLL_S)
+
+
+def _verified(database: Path, last: int) -> int:
+    """The pairs a worker has verified so far in ``database`` (``last``, the previous
+    reading, where it cannot be read now)."""
+    try:
+        con = sqlite3.connect(f"{database.resolve().as_uri()}?mode=ro", uri=True, timeout=0)
+        try:
+            count = con.execute("SELECT count(*) FROM two_view_geometries").fetchone()[0]
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return last
+    return max(last, int(count))
+
+
+def _raise_failure(target: Path, log: Path, status: int) -> None:
+    """Raise the CalibrationError of a worker that ended with ``status``."""
+    lines = log.read_bytes()[-(1 << 16) :].decode("utf-8", "replace").strip().splitlines()
+    how = f"killed by signal {-status}" if status < 0 else f"exit status {status}"
+    raise CalibrationError(f"matching failed: {failure_reason(target, lines)} (stopped, {how})")
+
+
+def _copy_back(database: Path, copies: list[Path], shares: list[Sequence[tuple[str, str]]]) -> None:
+    """Write the matches and two-view geometries of each pair of ``shares`` from the
+    workers' ``copies`` into ``database``, in pair order, empty ones included (pycolmap's
+    ``read_all_matches`` leaves those out)."""
+    with pycolmap.Database.open(str(database)) as db, pycolmap.DatabaseTransaction(db):
+        ids = {image.name: image.image_id for image in db.read_all_images()}
+        for copy, share in zip(copies, shares, strict=True):
+            with pycolmap.Database.open(str(copy)) as source:
+                for name1, name2 in share:
+                    pair = ids[name1], ids[name2]
+                    if source.exists_matches(*pair):
+                        db.write_matches(*pair, source.read_matches(*pair))
+                    if source.exists_two_view_geometry(*pair):
+                        db.write_two_view_geometry(*pair, source.read_two_view_geometry(*pair))
