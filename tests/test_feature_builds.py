@@ -118,11 +118,11 @@ def test_pairs_without_matches_come_back_from_every_worker(tmp_path: Path) -> No
     [
         (
             "import sys; sys.stderr.write('F1203 sift.cc:42] Check failed: boom\\n'); sys.exit(3)",
-            "matching failed: F1203 sift.cc:42] Check failed: boom (stopped, exit status 3)",
+            "F1203 sift.cc:42] Check failed: boom (a worker stopped, exit status 3)",
         ),
         (
             "import os, signal; os.kill(os.getpid(), signal.SIGKILL)",
-            "(stopped, killed by signal 9)",
+            "a worker stopped, killed by signal 9",
         ),
     ],
 )
@@ -135,6 +135,7 @@ def test_a_worker_that_fails_is_one_error(
     monkeypatch.setattr(matching, "_WORKER", worker)
     with pytest.raises(CalibrationError) as error:
         build_database(images, tmp_path / "database.db", camera_mode="auto", num_threads=2, seed=0)
-    assert message in str(error.value)
+    database = tmp_path / "database.db"
+    assert str(error.value) == f"cannot match the image pairs of {database}: {message}"
     assert len(str(error.value).splitlines()) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["database.db", "images"]

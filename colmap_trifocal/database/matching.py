@@ -104,8 +104,10 @@ def match_pairs(
         progress: a bar of pairs verified on stderr.
 
     Raises:
-        CalibrationError: a worker failed (the last line of its log says why).
+        CalibrationError: a worker failed (a full disk, or the last line of its log).
     """
+    if not pairs:
+        return
     count = max(1, min(workers, math.ceil(len(pairs) / PAIRS_PER_WORKER)))
     with tempfile.TemporaryDirectory(dir=database.parent, prefix=".matching-") as tmp:
         bounds = [k * len(pairs) // count for k in range(count + 1)]
@@ -119,15 +121,15 @@ def match_pairs(
         targets = [database] + [Path(tmp) / f"worker-{k}.db" for k in range(1, count)]
         for target in targets[1:]:
             copy_database(database, target, temporary=True)
-        _run_workers(targets, files, seed, len(pairs), Path(tmp), progress=progress)
+        _run_workers(database, targets, files, seed, Path(tmp), progress=progress)
         _copy_back(database, targets[1:], shares[1:])
 
 
-def _run_workers(
+def _run_workers(  # noqa: PLR0913 (the workers' files and settings)
+    database: Path,
     targets: list[Path],
     files: list[Path],
     seed: int | None,
-    total: int,
     tmp: Path,
     *,
     progress: bool,
@@ -139,7 +141,7 @@ def _run_workers(
     minloglevel = int(pycolmap.logging.minloglevel)
     logs = [tmp / f"worker-{k}.log" for k in range(len(targets))]
     try:
-        _wait_for_workers(targets, files, logs, seed, minloglevel, total, progress=progress)
+        _wait_for_workers(database, targets, files, logs, seed, minloglevel, progress=progress)
     finally:
         if minloglevel == 0:
             for log in logs:
@@ -148,16 +150,17 @@ def _run_workers(
 
 
 def _wait_for_workers(  # noqa: PLR0913 (the workers' files and settings)
+    database: Path,
     targets: list[Path],
     files: list[Path],
     logs: list[Path],
     seed: int | None,
     minloglevel: int,
-    total: int,
     *,
     progress: bool,
 ) -> None:
     """Start the workers of :func:`_run_workers`, and wait for them."""
+    total = sum(len(file.read_text().splitlines()) for file in files)
     with ExitStack() as stack:
         bar = stack.enter_context(
             tqdm(total=total, desc="matching: image pairs", unit="pair", disable=not progress)
@@ -184,9 +187,9 @@ def _wait_for_workers(  # noqa: PLR0913 (the workers' files and settings)
             )
         while True:
             statuses = [child.poll() for child in children]
-            for target, log_path, status in zip(targets, logs, statuses, strict=True):
+            for log_path, status in zip(logs, statuses, strict=True):
                 if status is not None and status != 0:
-                    _raise_failure(target, log_path, status)
+                    _raise_failure(database, log_path, status)
             if progress:
                 verified = [_verified(t, last) for t, last in zip(targets, verified, strict=True)]
                 bar.update(sum(verified) - bar.n)
@@ -210,11 +213,17 @@ def _verified(database: Path, last: int) -> int:
     return max(last, int(count))
 
 
-def _raise_failure(target: Path, log: Path, status: int) -> None:
-    """Raise the CalibrationError of a worker that ended with ``status``."""
+def _raise_failure(database: Path, log: Path, status: int) -> None:
+    """Raise the CalibrationError of a worker matching pairs of ``database`` that ended
+    with ``status``."""
     lines = log.read_bytes()[-(1 << 16) :].decode("utf-8", "replace").strip().splitlines()
     how = f"killed by signal {-status}" if status < 0 else f"exit status {status}"
-    raise CalibrationError(f"matching failed: {failure_reason(target, lines)} (stopped, {how})")
+    reason = failure_reason(database, lines)
+    stopped = f"a worker stopped, {how}"
+    raise CalibrationError(
+        f"cannot match the image pairs of {database}: "
+        + (stopped if reason == "?" else f"{reason} ({stopped})")
+    )
 
 
 def _copy_back(database: Path, copies: list[Path], shares: list[Sequence[tuple[str, str]]]) -> None:
