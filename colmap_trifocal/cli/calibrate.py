@@ -193,7 +193,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_database(args: argparse.Namespace, database: Path, options: CalibrationOptions) -> int:
     """Check everything, calibrate, print the table, write the outputs; exit status 0."""
-    from ..intrinsics.api import updated_cameras, write_calibrations
+    from ..intrinsics.api import tied_focal_cameras, updated_cameras, write_calibrations
     from .batch_input import calibrate_path
 
     model = _check_arguments(args, database)
@@ -212,6 +212,7 @@ def _run_database(args: argparse.Namespace, database: Path, options: Calibration
             args.refine or "ba",
             refine_distortion=args.refine_distortion,
             reconstruction=model,
+            tied=tied_focal_cameras(results),
         )
         print(update.describe(), file=out)
     entries = [r.to_json() for r in results] + [g.to_json() for g in skipped]

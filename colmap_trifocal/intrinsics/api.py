@@ -196,6 +196,14 @@ def updated_cameras(
     return updated
 
 
+def tied_focal_cameras(results: Sequence[CameraCalibration]) -> list[int]:
+    """The camera ids of every group whose calibration tied fy to fx (``source["fy"]``
+    ``tied``: the images did not tell the two apart), for a bundle adjustment to keep."""
+    return [
+        camera_id for r in results if r.source.get("fy") == "tied" for camera_id in r.camera_ids
+    ]
+
+
 def write_calibrations(path: Path | str, results: Sequence[CameraCalibration]) -> int:
     """Store the estimates in the database at ``path`` (backup first, one transaction).
 

@@ -11,7 +11,7 @@ estimate written in (poses and points unchanged), and after the refinement.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -139,6 +139,7 @@ def calibrate_model(
     *,
     refine_distortion: bool = False,
     reconstruction: pycolmap.Reconstruction | None = None,
+    tied: Collection[int] = (),
 ) -> ModelUpdate:
     """Copy the model at ``model`` to ``output`` with ``cameras``' params, refined on request.
 
@@ -150,6 +151,8 @@ def calibrate_model(
         refine_distortion: also refine the distortion parameters (with ``ba``).
         reconstruction: the model as :func:`read_model` read it (changed here); read
             from ``model`` when None.
+        tied: cameras whose fy the adjustment keeps equal to fx (see
+            :func:`.mapping.refine_intrinsics`).
     """
     if refine not in REFINE_CHOICES:
         raise CalibrationError(f"unknown --refine {refine!r} (choose from {REFINE_CHOICES})")
@@ -163,7 +166,7 @@ def calibrate_model(
     with_estimate = reprojection_error(reconstruction)
     refined = None
     if refine == "ba":
-        refine_intrinsics(reconstruction, distortion=refine_distortion)
+        refine_intrinsics(reconstruction, distortion=refine_distortion, tied=tied)
         refined = reprojection_error(reconstruction)
     write_model_atomically(reconstruction, Path(output))
     logger.info("wrote the model with %d calibrated camera(s) to %s", len(written), output)

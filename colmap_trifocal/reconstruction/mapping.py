@@ -9,6 +9,7 @@ lengths and the principal point together with poses and points.
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 
 import numpy as np
@@ -92,12 +93,37 @@ def camera_intrinsics(camera: pycolmap.Camera) -> np.ndarray:
     )
 
 
-def refine_intrinsics(reconstruction: pycolmap.Reconstruction, *, distortion: bool = False) -> None:
+def refine_intrinsics(
+    reconstruction: pycolmap.Reconstruction,
+    *,
+    distortion: bool = False,
+    tied: Collection[int] = (),
+) -> None:
     """Global bundle adjustment of poses, points, focal lengths and principal points (and
-    the distortion parameters with ``distortion``), in place."""
+    the distortion parameters with ``distortion``), in place.
+
+    The ``PINHOLE`` cameras whose ids are in ``tied`` keep ``fy = fx``: pycolmap refines
+    a PINHOLE camera's fx and fy apart, so they are adjusted as ``SIMPLE_PINHOLE``, from
+    the mean of the two, and written back as PINHOLE with the one focal length.
+    """
+    pinhole = pycolmap.CameraModelId.PINHOLE
+    cameras = reconstruction.cameras
+    single = [c for c in tied if c in cameras and cameras[c].model == pinhole]
+    for camera_id in single:
+        camera = reconstruction.cameras[camera_id]
+        fx, fy, cx, cy = camera.params
+        camera.model = pycolmap.CameraModelId.SIMPLE_PINHOLE
+        camera.params = [(fx + fy) / 2, cx, cy]
     options = bundle_adjustment_options(refine_extra_params=distortion)
-    with keep_colmap_quiet():
-        pycolmap.bundle_adjustment(reconstruction, options)
+    try:
+        with keep_colmap_quiet():
+            pycolmap.bundle_adjustment(reconstruction, options)
+    finally:
+        for camera_id in single:
+            camera = reconstruction.cameras[camera_id]
+            f, cx, cy = camera.params
+            camera.model = pinhole
+            camera.params = [f, f, cx, cy]
 
 
 def mean_reprojection_error(reconstruction: pycolmap.Reconstruction) -> float:
