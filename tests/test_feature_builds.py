@@ -139,3 +139,21 @@ def test_a_worker_that_fails_is_one_error(
     assert str(error.value) == f"cannot match the image pairs of {database}: {message}"
     assert len(str(error.value).splitlines()) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["database.db", "images"]
+
+
+@pytest.mark.parametrize(
+    ("pairs", "workers", "database_bytes", "free_bytes", "count"),
+    [
+        (45, 2, 17 << 20, 100 << 30, 2),  # entry-P10 on two cores
+        (45, 64, 17 << 20, 100 << 30, 12),  # one worker per 4 pairs
+        (780, 64, 1 << 30, 10 << 30, 6),  # 5 copies of 1 GB in half of 10 GB free
+        (780, 64, 1 << 30, 1 << 30, 1),  # no room for a copy: the database alone
+        (3, 8, 1 << 20, 1 << 30, 1),  # too few pairs for a second worker
+        (0, 8, 1 << 20, 1 << 30, 1),
+    ],
+)
+def test_how_many_workers_match(
+    pairs: int, workers: int, database_bytes: int, free_bytes: int, count: int
+) -> None:
+    """Workers are bounded by the cores, the pairs and the room for the database's copies."""
+    assert matching.worker_count(pairs, workers, database_bytes, free_bytes) == count

@@ -23,6 +23,7 @@ import contextlib
 import json
 import math
 import os
+import shutil
 import sqlite3
 import subprocess
 import sys
@@ -54,6 +55,14 @@ die_with_parent(int(sys.argv[2]))
 from colmap_trifocal.database.matching import match_share
 match_share(**json.loads(sys.argv[1]))
 """
+
+
+def worker_count(pairs: int, workers: int, database_bytes: int, free_bytes: int) -> int:
+    """How many workers match ``pairs`` pairs: at most ``workers``, one per
+    :data:`PAIRS_PER_WORKER` pairs, and no more copies of the database (every worker but
+    the first holds one) than fit in half the free space beside it; at least one."""
+    copies = free_bytes // (2 * max(database_bytes, 1))
+    return max(1, min(workers, math.ceil(pairs / PAIRS_PER_WORKER), 1 + copies))
 
 
 def verification_options(seed: int | None) -> pycolmap.TwoViewGeometryOptions:
@@ -108,7 +117,8 @@ def match_pairs(
     """
     if not pairs:
         return
-    count = max(1, min(workers, math.ceil(len(pairs) / PAIRS_PER_WORKER)))
+    free = shutil.disk_usage(database.parent).free
+    count = worker_count(len(pairs), workers, database.stat().st_size, free)
     with tempfile.TemporaryDirectory(dir=database.parent, prefix=".matching-") as tmp:
         bounds = [k * len(pairs) // count for k in range(count + 1)]
         shares = [pairs[start:end] for start, end in zip(bounds, bounds[1:], strict=False)]
