@@ -91,6 +91,28 @@ def test_run_builds_the_same_database_from_the_same_images_and_seed(
     assert np.sum([row[1] for row in first["two_view_geometries"]]) > 0
 
 
+def test_image_names_with_spaces_are_matched(tmp_path: Path) -> None:
+    """COLMAP reads a pairs file's lines as two names split at a space: the workers' copies
+    name each image by its id, so images whose names hold spaces are matched (before, on
+    the progress path, every pair of ``view 0.png``, ``view 1.png``, ... had no match)."""
+    folder = tmp_path / "images"
+    folder.mkdir()
+    for k, view in enumerate(small_texture_views(5)):
+        cv2.imwrite(str(folder / f"view {k}.png"), view)
+    options = {"camera_model": "SIMPLE_RADIAL", "camera_mode": "auto", "seed": 0}
+    one = database_rows(build_database(folder, tmp_path / "one.db", num_threads=1, **options))
+    two = database_rows(
+        build_database(folder, tmp_path / "two.db", num_threads=2, progress=True, **options)
+    )
+    assert len(one["matches"]) == 10 and all(row[1] > 0 for row in one["matches"])
+    for table in TABLES:
+        assert two[table] == one[table], table
+    with pycolmap.Database.open(str(tmp_path / "two.db")) as db:
+        assert sorted(image.name for image in db.read_all_images()) == [
+            f"view {k}.png" for k in range(5)
+        ]
+
+
 def test_pairs_without_matches_come_back_from_every_worker(tmp_path: Path) -> None:
     """Views of two textures: the pairs across them have no match, and their empty rows
     (which pycolmap's ``read_all_matches`` leaves out) come back from the second worker's
@@ -146,8 +168,8 @@ def test_a_worker_that_fails_is_one_error(
     [
         (45, 2, 17 << 20, 100 << 30, 2),  # entry-P10 on two cores
         (45, 64, 17 << 20, 100 << 30, 12),  # one worker per 4 pairs
-        (780, 64, 1 << 30, 10 << 30, 6),  # 5 copies of 1 GB in half of 10 GB free
-        (780, 64, 1 << 30, 1 << 30, 1),  # no room for a copy: the database alone
+        (780, 64, 1 << 30, 10 << 30, 5),  # 5 copies of 1 GB in half of 10 GB free
+        (780, 64, 1 << 30, 1 << 30, 1),  # room for no copy: still one worker
         (3, 8, 1 << 20, 1 << 30, 1),  # too few pairs for a second worker
         (0, 8, 1 << 20, 1 << 30, 1),
     ],

@@ -6,10 +6,11 @@ their matches, a different share every time; on one thread it does not happen
 (docs/reliability.md, "Determinism").
 
 So each worker here is a process that matches its share of the pairs in one pycolmap call
-on one thread: the first worker in the database itself, every other one in its own copy of
-it (features only), whose matches and two-view geometries are then copied back in pair
-order. A pair's result depends only on its two images and the verification's seed, so the
-database is the one a single thread builds, whatever the number of workers.
+on one thread, in its own copy of the database, whose matches and two-view geometries are
+then copied back in pair order. A pair's result depends only on its two images and the
+verification's seed, so the database is the one a single thread builds, whatever the
+number of workers. In the copies each image is named by its id: COLMAP reads a pairs
+file's lines as two names split at a space, so a name with a space matched nothing.
 
 Each worker's share is one call, not many: a call builds the descriptor index of every
 image it meets once, and a call per few pairs would build them again for every call. A
@@ -59,10 +60,10 @@ match_share(**json.loads(sys.argv[1]))
 
 def worker_count(pairs: int, workers: int, database_bytes: int, free_bytes: int) -> int:
     """How many workers match ``pairs`` pairs: at most ``workers``, one per
-    :data:`PAIRS_PER_WORKER` pairs, and no more copies of the database (every worker but
-    the first holds one) than fit in half the free space beside it; at least one."""
+    :data:`PAIRS_PER_WORKER` pairs, and no more copies of the database (one per worker)
+    than fit in half the free space beside it; at least one."""
     copies = free_bytes // (2 * max(database_bytes, 1))
-    return max(1, min(workers, math.ceil(pairs / PAIRS_PER_WORKER), 1 + copies))
+    return max(1, min(workers, math.ceil(pairs / PAIRS_PER_WORKER), copies))
 
 
 def verification_options(seed: int | None) -> pycolmap.TwoViewGeometryOptions:
@@ -102,8 +103,8 @@ def match_pairs(
     workers: int,
     progress: bool = False,
 ) -> None:
-    """Match and verify ``pairs`` (image names) of ``database``, which holds their
-    features and no matches yet.
+    """Match and verify ``pairs`` (names of images in ``database``) of ``database``,
+    which holds their features and no matches yet.
 
     Args:
         database: the COLMAP database, written in place.
@@ -117,22 +118,33 @@ def match_pairs(
     """
     if not pairs:
         return
+    with pycolmap.Database.open(str(database)) as db:
+        ids = {image.name: image.image_id for image in db.read_all_images()}
+    id_pairs = [(ids[a], ids[b]) for a, b in pairs]
     free = shutil.disk_usage(database.parent).free
     count = worker_count(len(pairs), workers, database.stat().st_size, free)
     with tempfile.TemporaryDirectory(dir=database.parent, prefix=".matching-") as tmp:
         bounds = [k * len(pairs) // count for k in range(count + 1)]
-        shares = [pairs[start:end] for start, end in zip(bounds, bounds[1:], strict=False)]
+        shares = [id_pairs[start:end] for start, end in zip(bounds, bounds[1:], strict=False)]
         files = [Path(tmp) / f"pairs-{k}.txt" for k in range(count)]
-        for share, path in zip(shares, files, strict=True):
-            path.write_text("".join(f"{a} {b}\n" for a, b in share))
+        copies = [Path(tmp) / f"worker-{k}.db" for k in range(count)]
+        for share, file, copy in zip(shares, files, copies, strict=True):
+            file.write_text("".join(f"{a} {b}\n" for a, b in share))
+            copy_database(database, copy, temporary=True)
+            _name_images_by_id(copy)
         if count == 1 and not progress:
-            match_share(str(database), str(files[0]), seed)
-            return
-        targets = [database] + [Path(tmp) / f"worker-{k}.db" for k in range(1, count)]
-        for target in targets[1:]:
-            copy_database(database, target, temporary=True)
-        _run_workers(database, targets, files, seed, Path(tmp), progress=progress)
-        _copy_back(database, targets[1:], shares[1:])
+            match_share(str(copies[0]), str(files[0]), seed)
+        else:
+            _run_workers(database, copies, files, seed, Path(tmp), progress=progress)
+        _copy_back(database, copies, shares)
+
+
+def _name_images_by_id(database: Path) -> None:
+    """Rename every image of ``database`` (a worker's copy) to its id."""
+    with pycolmap.Database.open(str(database)) as db, pycolmap.DatabaseTransaction(db):
+        for image in db.read_all_images():
+            image.name = str(image.image_id)
+            db.update_image(image)
 
 
 def _run_workers(  # noqa: PLR0913 (the workers' files and settings)
@@ -236,16 +248,14 @@ def _raise_failure(database: Path, log: Path, status: int) -> None:
     )
 
 
-def _copy_back(database: Path, copies: list[Path], shares: list[Sequence[tuple[str, str]]]) -> None:
-    """Write the matches and two-view geometries of each pair of ``shares`` from the
-    workers' ``copies`` into ``database``, in pair order, empty ones included (pycolmap's
-    ``read_all_matches`` leaves those out)."""
+def _copy_back(database: Path, copies: list[Path], shares: list[list[tuple[int, int]]]) -> None:
+    """Write the matches and two-view geometries of each pair (image ids) of ``shares``
+    from the workers' ``copies`` into ``database``, in pair order, empty ones included
+    (pycolmap's ``read_all_matches`` leaves those out)."""
     with pycolmap.Database.open(str(database)) as db, pycolmap.DatabaseTransaction(db):
-        ids = {image.name: image.image_id for image in db.read_all_images()}
         for copy, share in zip(copies, shares, strict=True):
             with pycolmap.Database.open(str(copy)) as source:
-                for name1, name2 in share:
-                    pair = ids[name1], ids[name2]
+                for pair in share:
                     if source.exists_matches(*pair):
                         db.write_matches(*pair, source.read_matches(*pair))
                     if source.exists_two_view_geometry(*pair):
