@@ -228,6 +228,36 @@ def test_terminated_extraction_prints_one_line(tmp_path: Path) -> None:
     assert (process.returncode, stderr.splitlines()) == (143, ["error: terminated"])
 
 
+def test_terminated_matching_leaves_nothing(tmp_path: Path) -> None:
+    """SIGTERM while the workers match (their copies of the database in a ``.matching-``
+    folder of the workspace): ``error: terminated``, status 143, and nothing left (the
+    workspace was new). Before, the build's child died at once (glog's SIGTERM handler)
+    and left that folder, copies and all, and with it the workspace."""
+    images = tmp_path / "images"
+    images.mkdir()
+    rng = np.random.default_rng(0)
+    for index in range(16):
+        cv2.imwrite(str(images / f"{index:02d}.png"), rng.integers(0, 256, (480, 640), np.uint8))
+    workspace = tmp_path / "ws"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "colmap_trifocal.cli", "run", str(images), str(workspace)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    deadline = time.monotonic() + 300
+    while not list(workspace.glob(".matching-*")) and process.poll() is None:
+        assert time.monotonic() < deadline, "the matching never started"
+        time.sleep(0.02)
+    assert process.poll() is None, process.communicate()
+    time.sleep(0.3)  # the workers started
+    os.killpg(process.pid, signal.SIGTERM)
+    _, stderr = process.communicate(timeout=120)
+    assert (process.returncode, stderr.splitlines()) == (143, ["error: terminated"])
+    assert not workspace.exists()
+
+
 # ----------------------------------------------------------------- help, defaults, progress
 
 

@@ -31,15 +31,21 @@ from .errors import CalibrationError
 
 #: The child: ``module.function(**json)`` with tqdm's bars on stdout; its return value
 #: as JSON in the file ``sys.argv[5]``; a refused input is its message in the file
-#: ``sys.argv[3]`` and status 2.
+#: ``sys.argv[3]`` and status 2. SIGTERM and SIGHUP end it through ``SystemExit``, so
+#: the function's own clean-up runs where Python has control (a pycolmap call in
+#: progress delays it; the parent kills the child after ``END_GRACE_S``).
 _CHILD = """\
-import importlib, json, pathlib, sys
+import importlib, json, pathlib, signal, sys
 from colmap_trifocal.common.children import die_with_parent
 die_with_parent(int(sys.argv[4]))
 module, function = sys.argv[1].rsplit(".", 1)
 arguments = json.loads(sys.argv[2])
 import pycolmap
 from colmap_trifocal.common.errors import CalibrationError
+def _end(signum, frame):
+    raise SystemExit(128 + signum)  # the function's clean-up runs (its temporary files)
+for _signum in (signal.SIGTERM, signal.SIGHUP):  # after pycolmap's import: glog's handler
+    signal.signal(_signum, _end)
 pycolmap.logging.minloglevel = arguments.pop("minloglevel")
 sys.stderr = sys.stdout  # tqdm writes its bars to sys.stderr
 try:

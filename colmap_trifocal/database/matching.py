@@ -75,13 +75,13 @@ def verification_options(seed: int | None) -> pycolmap.TwoViewGeometryOptions:
     return verification
 
 
-def match_share(
-    database: str, pairs_file: str, seed: int | None, minloglevel: int | None = None
-) -> None:
-    """Match and verify the image pairs listed by name in ``pairs_file`` (one pair per
-    line) in ``database``: one pycolmap call on one thread."""
-    if minloglevel is not None:
-        pycolmap.logging.minloglevel = minloglevel
+def match_share(database: str, pairs_file: str, seed: int | None, minloglevel: int) -> None:
+    """A worker's work: match and verify the image pairs listed by name in ``pairs_file``
+    (one pair per line) in ``database``, in one pycolmap call on one thread.
+
+    Always in a worker process, even the only one: the process that waits for it stays in
+    Python, where a signal that ends it runs the clean-up (the copies)."""
+    pycolmap.logging.minloglevel = minloglevel
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = 1
     pairing = pycolmap.ImportedPairingOptions()
@@ -132,10 +132,7 @@ def match_pairs(
             file.write_text("".join(f"{a} {b}\n" for a, b in share))
             copy_database(database, copy, temporary=True)
             _name_images_by_id(copy)
-        if count == 1 and not progress:
-            match_share(str(copies[0]), str(files[0]), seed)
-        else:
-            _run_workers(database, copies, files, seed, Path(tmp), progress=progress)
+        _run_workers(database, copies, files, seed, Path(tmp), progress=progress)
         _copy_back(database, copies, shares)
 
 
