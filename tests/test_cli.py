@@ -202,37 +202,10 @@ def test_closed_stderr_keeps_the_exit_status_of_an_error(tmp_path: Path) -> None
     assert list(tmp_path.iterdir()) == []
 
 
-def test_terminated_extraction_prints_one_line(tmp_path: Path) -> None:
-    """SIGTERM while pycolmap extracts features: ``error: terminated`` and nothing else
-    (COLMAP's glog ERROR line ``Stopping thread...`` only with -vv), status 143."""
-    images = tmp_path / "images"
-    images.mkdir()
-    rng = np.random.default_rng(0)
-    for index in range(16):
-        cv2.imwrite(str(images / f"{index:02d}.png"), rng.integers(0, 256, (480, 640), np.uint8))
-    workspace = tmp_path / "ws"
-    process = subprocess.Popen(
-        [sys.executable, "-m", "colmap_trifocal.cli", "run", str(images), str(workspace)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-    )
-    deadline = time.monotonic() + 120
-    while not (workspace / "database.db").exists() and process.poll() is None:
-        assert time.monotonic() < deadline, "the extraction never started"
-        time.sleep(0.05)
-    time.sleep(0.5)  # inside the extraction
-    os.killpg(process.pid, signal.SIGTERM)
-    _, stderr = process.communicate(timeout=120)
-    assert (process.returncode, stderr.splitlines()) == (143, ["error: terminated"])
-
-
-def test_terminated_matching_leaves_nothing(tmp_path: Path) -> None:
-    """SIGTERM while the workers match (their copies of the database in a ``.matching-``
-    folder of the workspace): ``error: terminated``, status 143, and nothing left (the
-    workspace was new). Before, the build's child died at once (glog's SIGTERM handler)
-    and left that folder, copies and all, and with it the workspace."""
+def _run_terminated_when(tmp_path: Path, started: Callable[[Path], bool], settle: float) -> str:
+    """``run`` on 16 random 640 x 480 images into a new workspace ``tmp_path / "ws"``, ended
+    by SIGTERM (to its process group) ``settle`` seconds after ``started(workspace)``;
+    asserts status 143, returns stderr."""
     images = tmp_path / "images"
     images.mkdir()
     rng = np.random.default_rng(0)
@@ -247,15 +220,32 @@ def test_terminated_matching_leaves_nothing(tmp_path: Path) -> None:
         start_new_session=True,
     )
     deadline = time.monotonic() + 300
-    while not list(workspace.glob(".matching-*")) and process.poll() is None:
-        assert time.monotonic() < deadline, "the matching never started"
+    while not started(workspace) and process.poll() is None:
+        assert time.monotonic() < deadline, "the stage never started"
         time.sleep(0.02)
     assert process.poll() is None, process.communicate()
-    time.sleep(0.3)  # the workers started
+    time.sleep(settle)
     os.killpg(process.pid, signal.SIGTERM)
     _, stderr = process.communicate(timeout=120)
-    assert (process.returncode, stderr.splitlines()) == (143, ["error: terminated"])
-    assert not workspace.exists()
+    assert process.returncode == 143, stderr
+    return stderr
+
+
+def test_terminated_extraction_prints_one_line(tmp_path: Path) -> None:
+    """SIGTERM while pycolmap extracts features: ``error: terminated`` and nothing else
+    (COLMAP's glog ERROR line ``Stopping thread...`` only with -vv), status 143."""
+    stderr = _run_terminated_when(tmp_path, lambda ws: (ws / "database.db").exists(), 0.5)
+    assert stderr.splitlines() == ["error: terminated"]
+
+
+def test_terminated_matching_leaves_nothing(tmp_path: Path) -> None:
+    """SIGTERM while the workers match (their copies of the database in a ``.matching-``
+    folder of the workspace): ``error: terminated``, status 143, and nothing left (the
+    workspace was new). Before, the build's child died at once (glog's SIGTERM handler)
+    and left that folder, copies and all, and with it the workspace."""
+    stderr = _run_terminated_when(tmp_path, lambda ws: any(ws.glob(".matching-*")), 0.3)
+    assert stderr.splitlines() == ["error: terminated"]
+    assert not (tmp_path / "ws").exists()
 
 
 # ----------------------------------------------------------------- help, defaults, progress
