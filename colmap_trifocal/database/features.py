@@ -146,18 +146,16 @@ def _cores(num_threads: int) -> int:
     return num_threads if num_threads > 0 else len(os.sched_getaffinity(0))
 
 
-def _pairs(database: Path, matcher: str) -> list[tuple[str, str]]:
-    """The image pairs (names) of COLMAP's ``matcher`` pair generator, with its default
-    options, in its order."""
+def _pairs(database: Path, matcher: str) -> list[tuple[int, int]]:
+    """The image pairs (image ids) of COLMAP's ``matcher`` pair generator, with its
+    default options, in its order."""
     with pycolmap.Database.open(str(database)) as db:
         generator: pycolmap.PairGenerator = (
             pycolmap.ExhaustivePairGenerator(pycolmap.ExhaustivePairingOptions(), db)
             if matcher == "exhaustive"
             else pycolmap.SequentialPairGenerator(pycolmap.SequentialPairingOptions(), db)
         )
-        pairs = generator.all_pairs()
-        names = {image.image_id: image.name for image in db.read_all_images()}
-    return [(names[a], names[b]) for a, b in pairs]
+        return [(int(a), int(b)) for a, b in generator.all_pairs()]
 
 
 def _import(

@@ -97,18 +97,18 @@ def match_share(database: str, pairs_file: str, seed: int | None, minloglevel: i
 
 def match_pairs(
     database: Path,
-    pairs: Sequence[tuple[str, str]],
+    pairs: Sequence[tuple[int, int]],
     *,
     seed: int | None,
     workers: int,
     progress: bool = False,
 ) -> None:
-    """Match and verify ``pairs`` (names of images in ``database``) of ``database``,
-    which holds their features and no matches yet.
+    """Match and verify ``pairs`` of images of ``database``, which holds their features
+    and no matches yet.
 
     Args:
         database: the COLMAP database, written in place.
-        pairs: the image pairs, in the order of COLMAP's pair generator.
+        pairs: the image pairs (image ids), in the order of COLMAP's pair generator.
         seed: the verification's RANSAC seed (None: random).
         workers: most worker processes (each matches on one thread).
         progress: a bar of pairs verified on stderr.
@@ -118,21 +118,18 @@ def match_pairs(
     """
     if not pairs:
         return
-    with pycolmap.Database.open(str(database)) as db:
-        ids = {image.name: image.image_id for image in db.read_all_images()}
-    id_pairs = [(ids[a], ids[b]) for a, b in pairs]
     free = shutil.disk_usage(database.parent).free
     count = worker_count(len(pairs), workers, database.stat().st_size, free)
     with tempfile.TemporaryDirectory(dir=database.parent, prefix=".matching-") as tmp:
         bounds = [k * len(pairs) // count for k in range(count + 1)]
-        shares = [id_pairs[start:end] for start, end in zip(bounds, bounds[1:], strict=False)]
+        shares = [list(pairs[start:end]) for start, end in zip(bounds, bounds[1:], strict=False)]
         files = [Path(tmp) / f"pairs-{k}.txt" for k in range(count)]
         copies = [Path(tmp) / f"worker-{k}.db" for k in range(count)]
         for share, file, copy in zip(shares, files, copies, strict=True):
             file.write_text("".join(f"{a} {b}\n" for a, b in share))
             copy_database(database, copy, temporary=True)
             _name_images_by_id(copy)
-        _run_workers(database, copies, files, seed, Path(tmp), progress=progress)
+        _run_workers(database, copies, files, len(pairs), seed, Path(tmp), progress=progress)
         _copy_back(database, copies, shares)
 
 
@@ -148,19 +145,23 @@ def _run_workers(  # noqa: PLR0913 (the workers' files and settings)
     database: Path,
     targets: list[Path],
     files: list[Path],
+    total: int,
     seed: int | None,
     tmp: Path,
     *,
     progress: bool,
 ) -> None:
-    """One worker process per ``(target, file)``; wait for all, with a bar of pairs.
+    """One worker process per ``(target, file)``; wait for all, with a bar of the
+    ``total`` pairs.
 
     The workers' COLMAP logs are kept in files to explain a failure, and passed on to
     stderr after they end where pycolmap's log level lets everything out."""
     minloglevel = int(pycolmap.logging.minloglevel)
     logs = [tmp / f"worker-{k}.log" for k in range(len(targets))]
     try:
-        _wait_for_workers(database, targets, files, logs, seed, minloglevel, progress=progress)
+        _wait_for_workers(
+            database, targets, files, logs, total, seed, minloglevel, progress=progress
+        )
     finally:
         if minloglevel == 0:
             for log in logs:
@@ -173,13 +174,13 @@ def _wait_for_workers(  # noqa: PLR0913 (the workers' files and settings)
     targets: list[Path],
     files: list[Path],
     logs: list[Path],
+    total: int,
     seed: int | None,
     minloglevel: int,
     *,
     progress: bool,
 ) -> None:
     """Start the workers of :func:`_run_workers`, and wait for them."""
-    total = sum(len(file.read_text().splitlines()) for file in files)
     with ExitStack() as stack:
         bar = stack.enter_context(
             tqdm(total=total, desc="matching: image pairs", unit="pair", disable=not progress)
