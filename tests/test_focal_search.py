@@ -10,7 +10,11 @@ import pytest
 from conftest import intrinsics_of, synthesize
 
 from colmap_trifocal import CalibrationError, CalibrationOptions, calibrate_database
-from colmap_trifocal.intrinsics.start.focal_search import SEARCH_FACTORS, search_focal
+from colmap_trifocal.intrinsics.start.focal_search import (
+    SEARCH_FACTORS,
+    hypothesis_costs,
+    search_focal,
+)
 from colmap_trifocal.synthetic.scenes import DEFAULT_INTRINSICS, make_scene
 
 TRUTH = DEFAULT_INTRINSICS
@@ -41,6 +45,23 @@ def test_search_is_reproducible() -> None:
     second = search_focal(tracks, start, np.random.default_rng(5), workers=2)
     assert first.focal == second.focal
     np.testing.assert_array_equal(first.costs, second.costs)
+
+
+def test_each_focal_length_is_costed_on_its_own() -> None:
+    """A focal length's cost does not depend on the others costed in the same call
+    (OpenCV's RANSACs seed each call): the search costs the start with its fine grid,
+    in one call, and must get what a call of its own gives. A quarter of the matches
+    are wrong, so the RANSACs draw many samples."""
+    (tracks,) = [make_scene(noise_px=1.0, outlier_ratio=0.25, seed=7).observations]
+    focal = float(np.sqrt(TRUTH[0] * TRUTH[1]))
+    fine = focal * 1.25 ** np.linspace(-1.0, 1.0, 9)
+    start = 1.3 * focal
+    together = hypothesis_costs(tracks, np.append(fine, start), TRUTH[2:], 4.0)
+    np.testing.assert_array_equal(together[:-1], hypothesis_costs(tracks, fine, TRUTH[2:], 4.0))
+    np.testing.assert_array_equal(
+        together[-1:], hypothesis_costs(tracks, np.array([start]), TRUTH[2:], 4.0)
+    )
+    assert np.argmin(together) == 4  # the truth, mid-grid
 
 
 def test_calibration_from_a_prior_50_percent_off(tmp_path: Path) -> None:

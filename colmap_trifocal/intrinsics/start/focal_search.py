@@ -280,8 +280,10 @@ def _coarse_to_fine(grid: _Grid, focal0: float, image_size: tuple[int, int]) -> 
     best = int(np.argmin(coarse_costs))
     ratio = coarse[1] / coarse[0]
     fine = coarse[best] * ratio ** np.linspace(-1.0, 1.0, FINE_STEPS)
-    per_triplet = grid.costs(fine, MAX_TRACKS, FINE_ITERATIONS)
-    start_cost = float(grid.costs(np.array([focal0]), MAX_TRACKS, FINE_ITERATIONS).sum())
+    # The start is costed with the fine grid, in the same call: each focal length's
+    # cost is its own (OpenCV's RANSACs seed each call), and a call forks its workers.
+    with_start = grid.costs(np.append(fine, focal0), MAX_TRACKS, FINE_ITERATIONS)
+    per_triplet, start_cost = with_start[:, :-1], float(with_start[:, -1].sum())
     all_focals = np.concatenate([coarse, fine, [focal0]])
     all_costs = np.concatenate([coarse_costs, per_triplet.sum(axis=0), [start_cost]])
     order = np.argsort(all_focals)
