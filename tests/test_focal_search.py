@@ -52,7 +52,7 @@ def test_each_focal_length_is_costed_on_its_own() -> None:
     (OpenCV's RANSACs seed each call): the search costs the start with its fine grid,
     in one call, and must get what a call of its own gives. A quarter of the matches
     are wrong, so the RANSACs draw many samples."""
-    (tracks,) = [make_scene(noise_px=1.0, outlier_ratio=0.25, seed=7).observations]
+    tracks = make_scene(noise_px=1.0, outlier_ratio=0.25, seed=7).observations
     focal = float(np.sqrt(TRUTH[0] * TRUTH[1]))
     fine = focal * 1.25 ** np.linspace(-1.0, 1.0, 9)
     start = 1.3 * focal
