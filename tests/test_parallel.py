@@ -435,8 +435,9 @@ def test_the_rings_small_tensor_calls_run_in_worker_processes_with_the_same_bits
 
 
 def test_the_focal_search_runs_in_worker_processes_with_the_same_bits(database: Path) -> None:
-    """The focal search's three grids (coarse, fine and the start's focal length), one job
-    per triplet of its six, run in forked processes with 2 workers (their numpy holds the
-    GIL: threads ran on 1.3–1.6 cores), and the result is the one worker's, bit for bit."""
+    """The focal search's two calls (the coarse grid; the fine grid with the start's focal
+    length), one job per triplet of its six, run in forked processes with 2 workers (their
+    numpy holds the GIL: threads ran on 1.3–1.6 cores), and the result is the one
+    worker's, bit for bit."""
     out = _with_forks_counted(database)
-    assert [jobs for name, jobs in out["2"]["forked"] if name == "_costs_job"] == [6, 6, 6]
+    assert [jobs for name, jobs in out["2"]["forked"] if name == "_costs_job"] == [6, 6]
