@@ -206,29 +206,50 @@ def _run_terminated_when(tmp_path: Path, started: Callable[[Path], bool], settle
     """``run`` on 16 random 640 x 480 images into a new workspace ``tmp_path / "ws"``, ended
     by SIGTERM (to its process group) ``settle`` seconds after ``started(workspace)``;
     asserts status 143, returns stderr."""
+    status, stderr = _run_signalled_when(tmp_path, started, settle, signal.SIGTERM)
+    assert status == 143, stderr
+    return stderr
+
+
+def _run_signalled_when(
+    tmp_path: Path,
+    started: Callable[[Path], bool],
+    settle: float,
+    signum: int,
+    ignored: bool = False,
+) -> tuple[int, str]:
+    """``run`` on 16 random 640 x 480 images into a new workspace ``tmp_path / "ws"``, sent
+    ``signum`` (to its process group) ``settle`` seconds after ``started(workspace)``, the
+    signal inherited as ignored where ``ignored`` (as under ``nohup``); its status and
+    stderr. Without a signal, ``run`` ends with status 2: random images have no verified
+    matches."""
     images = tmp_path / "images"
     images.mkdir()
     rng = np.random.default_rng(0)
     for index in range(16):
         cv2.imwrite(str(images / f"{index:02d}.png"), rng.integers(0, 256, (480, 640), np.uint8))
     workspace = tmp_path / "ws"
-    process = subprocess.Popen(
-        [sys.executable, "-m", "colmap_trifocal.cli", "run", str(images), str(workspace)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-    )
+    before = signal.signal(signum, signal.SIG_IGN) if ignored else None
+    try:  # an ignored signal stays ignored through fork and exec
+        process = subprocess.Popen(
+            [sys.executable, "-m", "colmap_trifocal.cli", "run", str(images), str(workspace)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+        )
+    finally:
+        if ignored:
+            signal.signal(signum, before)
     deadline = time.monotonic() + 300
     while not started(workspace) and process.poll() is None:
         assert time.monotonic() < deadline, "the stage never started"
         time.sleep(0.02)
     assert process.poll() is None, process.communicate()
     time.sleep(settle)
-    os.killpg(process.pid, signal.SIGTERM)
+    os.killpg(process.pid, signum)
     _, stderr = process.communicate(timeout=120)
-    assert process.returncode == 143, stderr
-    return stderr
+    return process.returncode, stderr
 
 
 def test_terminated_extraction_prints_one_line(tmp_path: Path) -> None:
@@ -246,6 +267,25 @@ def test_terminated_matching_leaves_nothing(tmp_path: Path) -> None:
     stderr = _run_terminated_when(tmp_path, lambda ws: any(ws.glob(".matching-*")), 0.3)
     assert stderr.splitlines() == ["error: terminated"]
     assert not (tmp_path / "ws").exists()
+
+
+def test_hangup_under_nohup_is_ignored(tmp_path: Path) -> None:
+    """SIGHUP while the workers match, the command started with SIGHUP ignored (``nohup``):
+    the run goes on to its own end, as without the signal (random images: the database is
+    built, then "no verified matches", status 2). Before, the build's child put its own
+    handler on SIGHUP and died (129), so the parent ended with "cannot build the
+    database"."""
+    status, stderr = _run_signalled_when(
+        tmp_path, lambda ws: any(ws.glob(".matching-*")), 0.3, signal.SIGHUP, ignored=True
+    )
+    assert status == 2, stderr
+    assert stderr.splitlines() == [
+        f"error: database has no verified matches (run COLMAP feature matching first): "
+        f"{tmp_path / 'ws' / 'database.db'}"
+    ]
+    with pycolmap.Database.open(str(tmp_path / "ws" / "database.db")) as db:
+        assert db.num_images() == 16
+        assert db.num_matched_image_pairs() == 16 * 15 // 2  # every pair was matched
 
 
 # ----------------------------------------------------------------- help, defaults, progress

@@ -33,19 +33,21 @@ from .errors import CalibrationError
 #: as JSON in the file ``sys.argv[5]``; a refused input is its message in the file
 #: ``sys.argv[3]`` and status 2. SIGTERM and SIGHUP end it through ``SystemExit``, so
 #: the function's own clean-up runs where Python has control (a pycolmap call in
-#: progress delays it; the parent kills the child after ``END_GRACE_S``).
+#: progress delays it; the parent kills the child after ``END_GRACE_S``). A signal this
+#: process inherited as ignored (``nohup``: SIGHUP) stays ignored, as in the parent.
 _CHILD = """\
 import importlib, json, pathlib, signal, sys
 from colmap_trifocal.common.children import die_with_parent
 die_with_parent(int(sys.argv[4]))
 module, function = sys.argv[1].rsplit(".", 1)
 arguments = json.loads(sys.argv[2])
+_ignored = {s for s in (signal.SIGTERM, signal.SIGHUP) if signal.getsignal(s) is signal.SIG_IGN}
 import pycolmap
 from colmap_trifocal.common.errors import CalibrationError
 def _end(signum, frame):
     raise SystemExit(128 + signum)  # the function's clean-up runs (its temporary files)
 for _signum in (signal.SIGTERM, signal.SIGHUP):  # after pycolmap's import: glog's handler
-    signal.signal(_signum, _end)
+    signal.signal(_signum, signal.SIG_IGN if _signum in _ignored else _end)  # nohup: ignored
 pycolmap.logging.minloglevel = arguments.pop("minloglevel")
 sys.stderr = sys.stdout  # tqdm writes its bars to sys.stderr
 try:
