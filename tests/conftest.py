@@ -22,6 +22,7 @@ cached file's sha256 against the one recorded when it was built.
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import hashlib
 import json
@@ -32,6 +33,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -398,17 +400,45 @@ def run_cli(
             environment.pop(key, None)
         else:
             environment[key] = value
-    done = subprocess.run(
-        [sys.executable, "-m", "colmap_trifocal.cli", *map(str, args)],
-        capture_output=True,
+    process = subprocess.Popen(
+        [sys.executable, "-X", "faulthandler", "-m", "colmap_trifocal.cli", *map(str, args)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
         text=True,
         encoding="utf-8",
         errors="backslashreplace",
-        timeout=300,
         preexec_fn=preexec_fn,
         env=environment,
     )
-    return CliResult(done.returncode, done.stdout, done.stderr)
+    try:
+        stdout, stderr = process.communicate(timeout=CLI_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"no end after {CLI_TIMEOUT_S} s; where it waited:\n{stacks_of(process)}")
+    return CliResult(process.returncode, stdout, stderr)
+
+
+#: Seconds a command of :func:`run_cli` may take before it is ended with its stacks shown.
+CLI_TIMEOUT_S = 300
+
+
+def stacks_of(process: subprocess.Popen) -> str:
+    """The Python stacks of a hung ``process`` (started with ``-X faulthandler``) and of
+    its children (forked workers inherit the handler): SIGABRT to each, children first,
+    so each prints its threads' stacks to the shared stderr and aborts; that stderr."""
+    try:
+        children = Path(f"/proc/{process.pid}/task/{process.pid}/children").read_text().split()
+    except OSError:
+        children = []
+    for pid in [*map(int, children), process.pid]:
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGABRT)
+        time.sleep(0.5)
+    try:
+        _, stderr = process.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        _, stderr = process.communicate()
+    return stderr
 
 
 @contextmanager

@@ -28,6 +28,7 @@ from conftest import (
     database_rows,
     require_rendering,
     run_cli,
+    stacks_of,
     synthesize,
 )
 
@@ -286,6 +287,29 @@ def test_hangup_under_nohup_is_ignored(tmp_path: Path) -> None:
     with pycolmap.Database.open(str(tmp_path / "ws" / "database.db")) as db:
         assert db.num_images() == 16
         assert db.num_matched_image_pairs() == 16 * 15 // 2  # every pair was matched
+
+
+def test_a_hung_command_shows_where_it_waits() -> None:
+    """What ``run_cli`` reports of a command that never ends: the Python stacks of the
+    process and of its forked child, each at its own wait."""
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-X",
+            "faulthandler",
+            "-c",
+            "import os, time\ndef parent_waits(): time.sleep(600)\n"
+            "def child_waits(): time.sleep(600)\n"
+            "child_waits() if os.fork() == 0 else parent_waits()",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(1.0)
+    stacks = stacks_of(process)
+    assert process.returncode == -signal.SIGABRT
+    assert "in parent_waits" in stacks and "in child_waits" in stacks, stacks
 
 
 # ----------------------------------------------------------------- help, defaults, progress
