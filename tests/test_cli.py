@@ -230,18 +230,18 @@ def _run_signalled_when(
     for index in range(16):
         cv2.imwrite(str(images / f"{index:02d}.png"), rng.integers(0, 256, (480, 640), np.uint8))
     workspace = tmp_path / "ws"
-    before = signal.signal(signum, signal.SIG_IGN) if ignored else None
-    try:  # an ignored signal stays ignored through fork and exec
-        process = subprocess.Popen(
-            [sys.executable, "-m", "colmap_trifocal.cli", "run", str(images), str(workspace)],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            start_new_session=True,
-        )
-    finally:
-        if ignored:
-            signal.signal(signum, before)
+    command = [sys.executable, "-m", "colmap_trifocal.cli", "run", str(images), str(workspace)]
+    if ignored:  # as nohup does: the signal ignored, then exec (which keeps it ignored)
+        command = [
+            sys.executable,
+            "-c",
+            f"import os, signal, sys; signal.signal({int(signum)}, signal.SIG_IGN); "
+            "os.execv(sys.executable, sys.argv[1:])",
+            *command,
+        ]
+    process = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
     deadline = time.monotonic() + 300
     while not started(workspace) and process.poll() is None:
         assert time.monotonic() < deadline, "the stage never started"
@@ -298,15 +298,18 @@ def test_a_hung_command_shows_where_it_waits() -> None:
             "-X",
             "faulthandler",
             "-c",
-            "import os, time\ndef parent_waits(): time.sleep(600)\n"
-            "def child_waits(): time.sleep(600)\n"
+            "import os, time\n"
+            "def parent_waits(): print('parent', flush=True); time.sleep(600)\n"
+            "def child_waits(): print('child', flush=True); time.sleep(600)\n"
             "child_waits() if os.fork() == 0 else parent_waits()",
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
-    time.sleep(1.0)
+    assert process.stdout is not None
+    ready = {process.stdout.readline().strip() for _ in range(2)}  # both in their waits
+    assert ready == {"parent", "child"}
     stacks = stacks_of(process)
     assert process.returncode == -signal.SIGABRT
     assert "in parent_waits" in stacks and "in child_waits" in stacks, stacks
