@@ -414,12 +414,16 @@ def _with_forks_counted(database: Path) -> dict[str, dict]:
 def test_polish_jobs_in_worker_processes_give_the_same_bits(
     real_scene_database: Callable[[str, str], Path],
 ) -> None:
-    """entry-P10's 20 triplets: the tracks' plane parallax and the polish's projective
-    refits and Schur complements run in forked processes with 2 workers
-    (``MIN_FORKED_JOBS``), and the result is the one worker's, bit for bit."""
+    """entry-P10's 20 triplets: the tracks' plane parallax, the polish's projective
+    refits with its calibrated cameras (one call: ``shared_camera.observed_at``) and the
+    Schur complements run in forked processes with 2 workers (``MIN_FORKED_JOBS``), and
+    the result is the one worker's, bit for bit."""
     out = _with_forks_counted(real_scene_database("entry-P10", "pinhole"))
-    forked = {name for name, _ in out["2"]["forked"]}
-    assert {"_parallax_job", "_observed_job", "_information_job"} <= forked
+    forked = [name for name, _ in out["2"]["forked"]]
+    assert {"_parallax_job", "_observed_at_job", "_information_job"} <= set(forked)
+    # The refits and the cameras at K went to the workers together, not in two calls.
+    assert forked.count("_observed_at_job") == 1
+    assert "_observed_job" not in forked and "_cameras_job" not in forked
     assert out["2"]["polished"]  # the polish ran and was kept: its jobs decided the result
 
 

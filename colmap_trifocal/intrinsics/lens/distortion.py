@@ -44,14 +44,14 @@ from ...common.log import keep_colmap_quiet
 from ...common.parallel import Beside
 from ...database.cameras import CameraInfo
 from ...geometry.tensor_estimation import TripletTensor
-from ..polish.calibrated_tracks import Observed, inlier_pixels, observed_tracks
+from ..polish.calibrated_tracks import Observed, inlier_pixels
 from ..polish.camera_setup import CameraSetup, Refined, pycolmap_camera_setup
 from ..polish.shared_camera import (
     Agreement,
     RawObservations,
     SharedCamera,
     agree_and_adjust,
-    cameras_at,
+    observed_at,
     shared_camera,
 )
 from ..solve.observability import HELD_FOCAL_STD
@@ -315,8 +315,9 @@ def estimate_distortion(lens: DistortionInput) -> LensDistortion | None:
         if screened is not None:
             return screened
     # Each tensor's tracks and projective cost, the same for every model fitted below.
-    observed = observed_tracks(lens.tensors, lens.tracks, lens.start, MAX_TRACKS, lens.workers)
-    fits = _Fits(observed, cameras_at(observed, lens.start, intrinsics, lens.workers))
+    fits = _Fits(
+        *observed_at(lens.tensors, lens.tracks, lens.start, intrinsics, MAX_TRACKS, lens.workers)
+    )
     richer = _RICHER_MODELS.get(camera_model) if camera_model == camera.model else None
     # The richer model's fit does not depend on the stored model's, which decides whether
     # it is used: it runs beside it, in a forked process where that is safe.

@@ -71,7 +71,7 @@ from .calibrated_tracks import (
 )
 from .camera_setup import camera_start, refined_directions
 from .information import reduced_information
-from .shared_camera import agree_and_adjust, cameras_at, shared_camera
+from .shared_camera import agree_and_adjust, cameras_at, observed_at, shared_camera
 
 
 @dataclass
@@ -160,9 +160,12 @@ def polish_intrinsics(
         return None
     setup, intrinsics = start_values
     limit = tau**2
-    if observed is None:
-        observed = observed_tracks(tensors, tracks, start, workers=workers)
-    formed = cameras_at(observed, start, intrinsics, workers, known=cameras)
+    if observed is None and cameras is None:
+        observed, formed = observed_at(tensors, tracks, start, intrinsics, workers=workers)
+    else:
+        if observed is None:
+            observed = observed_tracks(tensors, tracks, start, workers=workers)
+        formed = cameras_at(observed, start, intrinsics, workers, known=cameras)
     shared = shared_camera(observed, formed, intrinsics, setup.model, given.size)
     if shared is None:
         return None

@@ -141,7 +141,19 @@ def observed_tracks(
 
 
 def _observed_job(job: tuple[Any, ...]) -> Observed | None:
-    index, tensor, tracks, start, max_tracks = job
+    return observed_triplet(*job)
+
+
+def observed_triplet(
+    index: int,
+    tensor: TripletTensor,
+    tracks: dict[tuple[int, int, int], np.ndarray],
+    start: np.ndarray,
+    max_tracks: int = MAX_TRACKS,
+) -> Observed | None:
+    """One tensor's :class:`Observed` (the tensor at position ``index``; see
+    :func:`observed_tracks`), None where its tracks are too few or its projective fit
+    gives no finite cost."""
     pixels = inlier_pixels(tensor, tracks, max_tracks)
     if pixels.shape[1] <= PROJECTIVE_PARAMETERS // 3:
         return None
