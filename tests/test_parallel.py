@@ -469,6 +469,21 @@ def test_polish_jobs_in_worker_processes_give_the_same_bits(
 
 
 @pytest.mark.real_data
+def test_the_released_polish_jobs_in_worker_processes_give_the_same_bits(
+    real_scene_database: Callable[[str, str], Path],
+) -> None:
+    """lego's 19 triplets, whose principal point the constraint solve holds and the polish
+    estimates (``stage.release_held``): the release's projective refits and its calibrated
+    cameras go to the forked workers in one call, not two, and the result is the one
+    worker's, bit for bit."""
+    out = _with_forks_counted(real_scene_database("lego", "pinhole"))
+    forked = [name for name, _ in out["2"]["forked"]]
+    assert forked.count("_observed_at_job") == 1
+    assert "_observed_job" not in forked and "_cameras_job" not in forked
+    assert out["2"]["polished"]
+
+
+@pytest.mark.real_data
 def test_the_rings_small_tensor_calls_run_in_worker_processes_with_the_same_bits(
     real_scene_database: Callable[[str, str], Path],
 ) -> None:

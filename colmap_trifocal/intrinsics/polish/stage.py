@@ -82,7 +82,8 @@ from .bundle import (
     predict_polish,
 )
 from .calibrated_tracks import Observed, observed_tracks
-from .camera_setup import pycolmap_camera_setup
+from .camera_setup import camera_start, pycolmap_camera_setup
+from .shared_camera import observed_at
 
 #: Largest ratio of the polish's jackknife variance to the constraint solve's at
 #: which the polish is kept when no more triplets agree with it than with the
@@ -129,8 +130,8 @@ def polish(given: PolishInput) -> Polished:
     if wider is None:
         return _polish_solved(given)
     # Both adjustments below start from the same tracks and projective costs.
-    observed = observed_tracks(given.tensors, given.tracks, given.start, workers=given.workers)
-    released, why_held = release_held(given, observed, wider)
+    observed, cameras = _observed_for_release(given, wider)
+    released, why_held = release_held(given, observed, wider, cameras)
     if released is not None:
         return released
     polished = _polish_solved(given, observed)
@@ -144,6 +145,29 @@ def polish(given: PolishInput) -> Polished:
     for name in _released_names(given.fallback.free_parameters):
         polished.summary[name] = f"held: {why_held}"
     return polished
+
+
+def _observed_for_release(
+    given: PolishInput, wider: FreeParameters
+) -> tuple[list[Observed], dict[tuple[int, int, int], np.ndarray]]:
+    """Each tensor's tracks and projective cost (:func:`.calibrated_tracks.observed_tracks`)
+    and, by the tensor's images, its calibrated cameras at the start of the adjustment of
+    ``wider`` where they could be formed, computed together (one call to the workers:
+    :func:`.shared_camera.observed_at`); no cameras where pycolmap cannot express
+    ``wider``."""
+    start_values = camera_start(wider, given.estimate)
+    if start_values is None:
+        observed = observed_tracks(given.tensors, given.tracks, given.start, workers=given.workers)
+        return observed, {}
+    observed, formed = observed_at(
+        given.tensors, given.tracks, given.start, start_values[1], workers=given.workers
+    )
+    cameras = {
+        triplet.tensor.image_ids: camera
+        for triplet, camera in zip(observed, formed, strict=True)
+        if camera is not None
+    }
+    return observed, cameras
 
 
 def released_parameters(solved: FreeParameters) -> FreeParameters | None:
@@ -210,13 +234,18 @@ def _polish_solved(given: PolishInput, observed: list[Observed] | None = None) -
 
 
 def release_held(
-    given: PolishInput, observed: list[Observed], wider: FreeParameters
+    given: PolishInput,
+    observed: list[Observed],
+    wider: FreeParameters,
+    cameras: dict[tuple[int, int, int], np.ndarray] | None = None,
 ) -> tuple[Polished | None, str | None]:
     """The polish with ``wider`` estimated (:func:`released_parameters`: what the
     constraint solve held; see the module) and None, or None and why those values stay
-    held. ``observed``: the tensors' tracks and projective costs."""
+    held. ``observed``: the tensors' tracks and projective costs; ``cameras``: their
+    calibrated cameras at the adjustment's start where already formed (by the tensor's
+    images)."""
     fallback, start = given.fallback, given.start
-    result = polish_intrinsics(given, wider, observed=observed)
+    result = polish_intrinsics(given, wider, observed=observed, cameras=cameras)
     scale = focal_scale(start)
     why = _not_determined(result, wider, scale, fallback.tolerances, given.agreeing)
     names = _released_names(fallback.free_parameters)
