@@ -101,7 +101,8 @@ def map_jobs(
 
     One worker, or a single job, runs in the calling thread. The processes inherit
     ``function`` and ``jobs`` (closures included) with the fork; their results are
-    pickled back. On an exception (Ctrl-C included) the jobs not yet started are
+    pickled back; a worker process that has sent them exits on its own, unwaited for
+    (:func:`_released`). On an exception (Ctrl-C included) the jobs not yet started are
     cancelled, running threads finish their job (each is one triplet: milliseconds) and
     worker processes are ended; then the exception propagates.
 
