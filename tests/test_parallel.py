@@ -111,28 +111,31 @@ def test_a_worker_failure_reaches_the_caller(in_a_worker: str, caught: str, expe
 
 def test_the_caller_does_not_wait_for_a_worker_to_exit() -> None:
     """A worker that has sent its results is neither killed nor waited for while it exits
-    (here a 3-second pause in each worker's exit): ``map_jobs`` and ``Beside.result``
-    return with the results while both workers are still exiting, and once exited they
-    are reaped (by ``active_children``, as by the next fork). Ending and waiting for a
-    worker took 8 ms of every forked call (its exit unmaps a copy of the caller's
-    memory)."""
+    (here a 3-second pause in each worker's exit, armed as it starts): ``map_jobs`` and
+    ``Beside.result`` return with the results while both workers are still exiting, and
+    once exited they are reaped (by ``active_children``, as by the next fork). Ending and
+    waiting for a worker took 8 ms of every forked call (its exit unmaps a copy of the
+    caller's memory)."""
     run = _python(
         """
         import json, multiprocessing, os, time
         from multiprocessing import util
         from colmap_trifocal.common.parallel import Beside, map_jobs
-        parent = os.getpid()
-        armed = []
-        def slow_exit(value):
-            if os.getpid() != parent and not armed:
-                armed.append(util.Finalize(None, time.sleep, args=(3,), exitpriority=0))
+        class Hook:
+            pass
+        hook = Hook()  # kept alive: util holds it weakly
+        # Every worker, from its start: a 3-second pause in its exit, whatever jobs it took.
+        util.register_after_fork(
+            hook, lambda _: util.Finalize(None, time.sleep, args=(3,), exitpriority=0)
+        )
+        def job(value):
             time.sleep(0.05)
             return value
         start = time.monotonic()
-        results = map_jobs(slow_exit, list(range(6)), 2, processes=True)
+        results = map_jobs(job, list(range(6)), 2, processes=True)
         mapped = time.monotonic() - start
         start = time.monotonic()
-        with Beside(lambda: slow_exit("beside"), workers=2) as beside:
+        with Beside(lambda: job("beside"), workers=2) as beside:
             value = beside.result()
         beside_seconds = time.monotonic() - start
         exiting = len(multiprocessing.active_children())
