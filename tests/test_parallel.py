@@ -153,6 +153,31 @@ def test_the_caller_does_not_wait_for_a_worker_to_exit() -> None:
     assert out["left"] == 0  # and reaped once exited
 
 
+def test_a_worker_stuck_in_its_exit_does_not_hold_the_callers_exit() -> None:
+    """A worker that has sent its results and then hangs in its exit (here a 10-minute
+    pause) is ended by the caller's own exit (``multiprocessing`` ends daemonic children
+    with SIGTERM, which the worker no longer ignores once its work is sent), instead of
+    holding it: the caller exits at once, with its output and status."""
+    start = time.monotonic()
+    run = _python(
+        """
+        import time
+        from multiprocessing import util
+        from colmap_trifocal.common.parallel import map_jobs
+        class Hook:
+            pass
+        hook = Hook()  # kept alive: util holds it weakly
+        util.register_after_fork(
+            hook, lambda _: util.Finalize(None, time.sleep, args=(600,), exitpriority=0)
+        )
+        print(map_jobs(lambda job: job, list(range(6)), 2, processes=True))
+        """
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip() == "[0, 1, 2, 3, 4, 5]"
+    assert time.monotonic() - start < 60  # not the worker's 600 s
+
+
 @pytest.fixture(scope="module")
 def database(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """8 images of one PINHOLE camera, 0.5 px of noise and 20 % wrong matches."""

@@ -273,13 +273,20 @@ def _take_jobs(
 
 
 def _send(sending: Any, message: tuple[Any, ...]) -> None:
-    """``message`` on ``sending`` (a pipe's end, closed after); where it cannot be
-    pickled, a message with no results and the error saying so."""
+    """A worker's last act: ``message`` on ``sending`` (a pipe's end, closed after); where
+    it cannot be pickled, a message with no results and the error saying so.
+
+    From here the worker only exits, unwaited for (:func:`_released`): the signals that
+    end a run take their default action in it again (it ends, silently), so that the
+    caller's own exit, which ends its daemonic children with SIGTERM and joins them,
+    cannot wait on one stuck in its exit."""
     try:
         sending.send(message)
     except Exception as unsent:  # noqa: BLE001 - unpicklable: say so instead
         sending.send((*(None for _ in message[:-1]), RuntimeError(f"not sent back: {unsent!r}")))
     sending.close()
+    for signum in TERMINATING_SIGNALS:
+        signal.signal(signum, signal.SIG_DFL)
 
 
 def _in_worker() -> queue.SimpleQueue[logging.LogRecord]:
