@@ -109,6 +109,21 @@ def test_a_worker_failure_reaches_the_caller(in_a_worker: str, caught: str, expe
     assert run.stdout.strip() == f"caught: {expected}"
 
 
+def _exit_pause(seconds: float) -> str:
+    """Script lines (for :func:`_python`) that give every worker forked after them a pause
+    of ``seconds`` in its exit, armed as it starts (whatever jobs it then takes)."""
+    return f"""
+        import time
+        from multiprocessing import util
+        class Hook:
+            pass
+        hook = Hook()  # kept alive: util holds it weakly
+        util.register_after_fork(
+            hook, lambda _: util.Finalize(None, time.sleep, args=({seconds},), exitpriority=0)
+        )
+        """
+
+
 def test_the_caller_does_not_wait_for_a_worker_to_exit() -> None:
     """A worker that has sent its results is neither killed nor waited for while it exits
     (here a 3-second pause in each worker's exit, armed as it starts): ``map_jobs`` and
@@ -117,17 +132,10 @@ def test_the_caller_does_not_wait_for_a_worker_to_exit() -> None:
     waiting for a worker took 8 ms of every forked call (its exit unmaps a copy of the
     caller's memory)."""
     run = _python(
-        """
-        import json, multiprocessing, os, time
-        from multiprocessing import util
+        _exit_pause(3)
+        + """
+        import json, multiprocessing
         from colmap_trifocal.common.parallel import Beside, map_jobs
-        class Hook:
-            pass
-        hook = Hook()  # kept alive: util holds it weakly
-        # Every worker, from its start: a 3-second pause in its exit, whatever jobs it took.
-        util.register_after_fork(
-            hook, lambda _: util.Finalize(None, time.sleep, args=(3,), exitpriority=0)
-        )
         def job(value):
             time.sleep(0.05)
             return value
@@ -160,16 +168,9 @@ def test_a_worker_stuck_in_its_exit_does_not_hold_the_callers_exit() -> None:
     holding it: the caller exits at once, with its output and status."""
     start = time.monotonic()
     run = _python(
-        """
-        import time
-        from multiprocessing import util
+        _exit_pause(600)
+        + """
         from colmap_trifocal.common.parallel import map_jobs
-        class Hook:
-            pass
-        hook = Hook()  # kept alive: util holds it weakly
-        util.register_after_fork(
-            hook, lambda _: util.Finalize(None, time.sleep, args=(600,), exitpriority=0)
-        )
         print(map_jobs(lambda job: job, list(range(6)), 2, processes=True))
         """
     )
