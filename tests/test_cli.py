@@ -298,9 +298,11 @@ def test_a_hung_command_shows_where_it_waits() -> None:
             "-X",
             "faulthandler",
             "-c",
+            # Each line in one write(2) of its own: two prints into the same pipe
+            # interleave ('parentchild', then the two newlines).
             "import os, time\n"
-            "def parent_waits(): print('parent', flush=True); time.sleep(600)\n"
-            "def child_waits(): print('child', flush=True); time.sleep(600)\n"
+            "def parent_waits(): os.write(1, b'parent\\n'); time.sleep(600)\n"
+            "def child_waits(): os.write(1, b'child\\n'); time.sleep(600)\n"
             "child_waits() if os.fork() == 0 else parent_waits()",
         ],
         stdout=subprocess.PIPE,
