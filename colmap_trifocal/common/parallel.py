@@ -165,7 +165,7 @@ def _in_processes(
     """
     taken = multiprocessing.get_context("fork").Value("q", 0)
     children = []
-    answered: set[int] = set()  # the children whose one message came
+    answered = 0  # children[:answered] have sent their one message
     try:
         for _ in range(workers - 1):
             children.append(_forked(_take_jobs, function, jobs, taken))
@@ -177,12 +177,12 @@ def _in_processes(
         except BaseException:
             _take_none(taken, len(jobs))
             raise
-        for position, (_child, receiving) in enumerate(children):
+        for _child, receiving in children:
             try:
                 done, records, error = receiving.recv()
             except EOFError:
                 raise CalibrationError(WORKER_DIED) from None
-            answered.add(position)
+            answered += 1
             _emit(records)
             for index, value in done or ():
                 results[index] = value
@@ -192,7 +192,7 @@ def _in_processes(
         return results
     finally:
         for position, (child, receiving) in enumerate(children):
-            (_released if position in answered else _ended)(child, receiving)
+            (_released if position < answered else _ended)(child, receiving)
 
 
 def _forked(target: Callable[..., None], *args: Any) -> tuple[Any, Any]:
@@ -357,9 +357,7 @@ class Beside:
             if isinstance(raised, EOFError):
                 raise CalibrationError(WORKER_DIED) from None
             raise
-        _released(self._process, self._connection)
-        self._process = None
-        self._function = _closed
+        self._let_go(_released)
         _emit(records)
         if error is not None:
             raise error
@@ -369,7 +367,12 @@ class Beside:
         """End the process (if still running) and release its pipe."""
         if self._process is None:
             return
-        _ended(self._process, self._connection)
+        self._let_go(_ended)
+
+    def _let_go(self, end: Callable[[Any, Any], None]) -> None:
+        """The process let go by ``end`` (:func:`_ended` or :func:`_released`), and the
+        function no longer to be asked for."""
+        end(self._process, self._connection)
         self._process = None
         self._function = _closed
 
