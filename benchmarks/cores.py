@@ -26,32 +26,24 @@ import time
 from pathlib import Path
 
 import numpy as np
-from real import BENCHMARKS, databases, parse_seeds  # noqa: I001 (benchmarks/ is on sys.path)
-from real_scenes import DATABASE_KINDS, SCENES, SCENES_BY_NAME, prior_5
+from real import BENCHMARKS, parse_seeds, scene_databases  # noqa: I001 (benchmarks/ is on sys.path)
+from real_scenes import DATABASE_KINDS, SCENES, prior_5
 
 from colmap_trifocal import CalibrationOptions, calibrate_database
 from colmap_trifocal.datasets.strecha import default_datasets_root
 
-#: Issue 35's cost bar: calibrate ≤ max(mapping / MAPPING_RATIO, FLOOR_S) seconds.
-MAPPING_RATIO = 10.0
-FLOOR_S = 1.0
-
-
-#: ... on scenes of at least this many images.
-MIN_IMAGES = 10
-
 
 def cost_bars(out: Path) -> dict[tuple[str, str], float]:
-    """(scene, database) → the cost bar in seconds, from the mapping seconds of
-    ``out/real.json`` (none where that has no mapping or the scene too few images)."""
+    """(scene, database) → issue 35's cost bar in seconds, from ``out/real.json``'s
+    summary (none where it has no row, no mapping, or the scene too few images)."""
     report = out / "real.json"
     if not report.exists():
         return {}
-    figures = json.loads(report.read_text())["figures"]
+    rows = json.loads(report.read_text())["summary"]
     return {
-        (f["scene"], f["database"]): max(f["mapping"]["seconds"] / MAPPING_RATIO, FLOOR_S)
-        for f in figures
-        if f.get("mapping") is not None and f["images"] >= MIN_IMAGES
+        (row["scene"], row["database"]): float(row["cost_bar"])
+        for row in rows
+        if row.get("cost_bar") is not None
     }
 
 
@@ -88,29 +80,26 @@ def main() -> None:
     )
     print("|---|---|---|---|---|---|---|---|")
     names = args.scenes.split(",") if args.scenes else [s.name for s in SCENES]
-    for name in names:
-        scene = SCENES_BY_NAME[name]
-        truth = scene.truth(root)
-        paths = databases(scene, root, args.out)
-        for kind in args.databases.split(","):
-            database = paths[kind]
-            calibrate_database(database, CalibrationOptions(seed=0))  # caches warm
-            every, one = [], []
-            for start in args.starts.split(","):
-                for seed in parse_seeds(args.seeds):
-                    prior = None if start == "guess" else prior_5(truth, seed)
-                    for workers, seconds in ((None, every), (1, one)):
-                        options = CalibrationOptions(seed=seed, prior=prior, workers=workers)
-                        seconds.append(timed(database, options))
-            floor = float(np.mean(one)) / cores
-            bar = bars.get((name, kind))
-            judged = ("", "") if bar is None else (f"{bar:.2f}", "yes" if floor <= bar else "NO")
-            print(
-                f"| {name} | {kind} | {np.mean(every):.2f} / {max(every):.2f} "
-                f"| {np.mean(one):.2f} / {max(one):.2f} | {np.mean(one) / np.mean(every):.2f} "
-                f"| {floor:.2f} | {judged[0]} | {judged[1]} |",
-                flush=True,
-            )
+    for scene, truth, kind, database in scene_databases(
+        names, args.databases.split(","), root, args.out
+    ):
+        calibrate_database(database, CalibrationOptions(seed=0))  # caches warm
+        every, one = [], []
+        for start in args.starts.split(","):
+            for seed in parse_seeds(args.seeds):
+                prior = None if start == "guess" else prior_5(truth, seed)
+                for workers, seconds in ((None, every), (1, one)):
+                    options = CalibrationOptions(seed=seed, prior=prior, workers=workers)
+                    seconds.append(timed(database, options))
+        floor = float(np.mean(one)) / cores
+        bar = bars.get((scene.name, kind))
+        judged = ("", "") if bar is None else (f"{bar:.2f}", "yes" if floor <= bar else "NO")
+        print(
+            f"| {scene.name} | {kind} | {np.mean(every):.2f} / {max(every):.2f} "
+            f"| {np.mean(one):.2f} / {max(one):.2f} | {np.mean(one) / np.mean(every):.2f} "
+            f"| {floor:.2f} | {judged[0]} | {judged[1]} |",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

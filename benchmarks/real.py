@@ -39,6 +39,7 @@ import argparse
 import json
 import os
 import time
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -145,6 +146,19 @@ def databases(scene: RealScene, root: Path, out: Path) -> dict[str, Path]:
         derive_pinhole_database(default, partial)
         partial.rename(pinhole)
     return {"default": default, "pinhole": pinhole}
+
+
+def scene_databases(
+    names: list[str], kinds: list[str], root: Path, out: Path
+) -> Iterator[tuple[RealScene, np.ndarray, str, Path]]:
+    """(scene, its ground truth (fx, fy, cx, cy), database kind, database path) of each
+    named scene and kind, the databases cached in ``out`` (built on first use)."""
+    for name in names:
+        scene = SCENES_BY_NAME[name]
+        truth = scene.truth(root)
+        paths = databases(scene, root, out)
+        for kind in kinds:
+            yield scene, truth, kind, paths[kind]
 
 
 def calibrate_run(
@@ -394,24 +408,19 @@ def main() -> None:
     all_figures = []
     default = SUBSETS if args.subsets else LENSES if args.lenses else SCENES
     names = args.scenes.split(",") if args.scenes else [s.name for s in default]
-    for name in names:
-        scene = SCENES_BY_NAME[name]
-        truth = scene.truth(root)
-        paths = databases(scene, root, args.out)
-        for kind in args.databases.split(","):
-            database = paths[kind]
-            with pycolmap.Database.open(str(database)) as db:
-                images = db.num_images()
-            figures = DatabaseFigures(scene.name, scene.scene_class, kind, images, truth.tolist())
-            if not args.no_mapping:
-                figures.mapping = map_database(database, truth, args.out / "mapping")
-            for start in args.starts.split(","):
-                for seed in seeds:
-                    figures.runs.append(
-                        calibrate_run(database, truth, start, seed, args.max_triplets)
-                    )
-            print_scene(figures)
-            all_figures.append(figures)
+    for scene, truth, kind, database in scene_databases(
+        names, args.databases.split(","), root, args.out
+    ):
+        with pycolmap.Database.open(str(database)) as db:
+            images = db.num_images()
+        figures = DatabaseFigures(scene.name, scene.scene_class, kind, images, truth.tolist())
+        if not args.no_mapping:
+            figures.mapping = map_database(database, truth, args.out / "mapping")
+        for start in args.starts.split(","):
+            for seed in seeds:
+                figures.runs.append(calibrate_run(database, truth, start, seed, args.max_triplets))
+        print_scene(figures)
+        all_figures.append(figures)
     rows = summary(all_figures)
     print_summary(rows)
     report = {"figures": [asdict(f) for f in all_figures], "summary": rows}
