@@ -7,8 +7,9 @@ command line run it) and with all the work on one core (``workers=1``). Interlea
 that a machine that slows down or speeds up during the run weighs on both alike.
 
 Per database it prints the mean and slowest seconds of both, their ratio (what the other
-cores give), and the **floor**: the one-core mean divided by the cores, the time of
-the same work perfectly spread over every core. Where ``real.py``'s ``real.json`` in
+cores give), and the **floor**: the one-core mean divided by the cores this process may
+use, the time of the same work perfectly spread over every core (``calibrate`` uses at
+most 8 workers: beyond 8 cores the floor is optimistic). Where ``real.py``'s ``real.json`` in
 ``--out`` has the database's mapping, the cost bar of issue 35 (calibrate ≤
 max(mapping / 10, 1 s)) is beside it: a floor above the bar means that no parallel
 schedule of today's work meets it on this machine, only less work.
