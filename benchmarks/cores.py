@@ -27,8 +27,14 @@ import time
 from pathlib import Path
 
 import numpy as np
-from real import BENCHMARKS, parse_seeds, scene_databases  # noqa: I001 (benchmarks/ is on sys.path)
-from real_scenes import DATABASE_KINDS, SCENES, prior_5
+from real import (  # noqa: I001 (benchmarks/ is on sys.path)
+    BENCHMARKS,
+    add_run_arguments,
+    parse_seeds,
+    scene_databases,
+    start_prior,
+)
+from real_scenes import SCENES
 
 from colmap_trifocal import CalibrationOptions, calibrate_database
 from colmap_trifocal.datasets.strecha import default_datasets_root
@@ -60,12 +66,7 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawTextHelpFormatter
     )
     parser.add_argument("--scenes", help="comma-separated names (default: every scene)")
-    parser.add_argument("--databases", default=",".join(DATABASE_KINDS))
-    parser.add_argument("--seeds", default="0-4", help="seeds of the runs (e.g. 0-4 or 0,3)")
-    parser.add_argument(
-        "--starts", default="guess,prior", help="guess (the stored camera), prior (±5 %%)"
-    )
-    parser.add_argument("--out", type=Path, default=Path("benchmark_output/real"))
+    add_run_arguments(parser)
     args = parser.parse_args()
     root = default_datasets_root(BENCHMARKS.parent)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -88,7 +89,7 @@ def main() -> None:
         every, one = [], []
         for start in args.starts.split(","):
             for seed in parse_seeds(args.seeds):
-                prior = None if start == "guess" else prior_5(truth, seed)
+                prior = start_prior(start, truth, seed)
                 for workers, seconds in ((None, every), (1, one)):
                     options = CalibrationOptions(seed=seed, prior=prior, workers=workers)
                     seconds.append(timed(database, options))

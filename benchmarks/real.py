@@ -161,6 +161,24 @@ def scene_databases(
             yield scene, truth, kind, paths[kind]
 
 
+def add_run_arguments(parser: argparse.ArgumentParser) -> None:
+    """The runs' arguments (``--databases``, ``--seeds``, ``--starts``) and ``--out``, the
+    folder their databases are cached in: the same for every benchmark of these runs."""
+    parser.add_argument("--databases", default=",".join(DATABASE_KINDS))
+    parser.add_argument("--seeds", default="0-4", help="seeds of the runs (e.g. 0-4 or 0,3)")
+    parser.add_argument(
+        "--starts", default="guess,prior", help="guess (the stored camera), prior (±5 %%)"
+    )
+    parser.add_argument("--out", type=Path, default=Path("benchmark_output/real"))
+
+
+def start_prior(
+    start: str, truth: np.ndarray, seed: int
+) -> tuple[float, float, float, float] | None:
+    """A run's prior: none from the stored camera (``guess``), else ±5 % off ``truth``."""
+    return None if start == "guess" else prior_5(truth, seed)
+
+
 def calibrate_run(
     database: Path,
     truth: np.ndarray,
@@ -168,8 +186,9 @@ def calibrate_run(
     seed: int,
     max_triplets: int | None,
 ) -> Run:
-    prior = None if start == "guess" else prior_5(truth, seed)
-    options = CalibrationOptions(seed=seed, prior=prior, max_triplets=max_triplets)
+    options = CalibrationOptions(
+        seed=seed, prior=start_prior(start, truth, seed), max_triplets=max_triplets
+    )
     with Stopwatch() as watch:
         results = calibrate_database(database, options)
     (result,) = results  # every scene is one physical camera
@@ -383,11 +402,7 @@ def main() -> None:
         action="store_true",
         help="the Strecha scenes through phone-like lenses of other strengths instead",
     )
-    parser.add_argument("--databases", default=",".join(DATABASE_KINDS))
-    parser.add_argument("--seeds", default="0-4", help="seeds of the runs (e.g. 0-4 or 0,3)")
-    parser.add_argument(
-        "--starts", default="guess,prior", help="guess (the stored camera), prior (±5 %%)"
-    )
+    add_run_arguments(parser)
     parser.add_argument("--no-mapping", action="store_true", help="skip pycolmap's mapping")
     parser.add_argument(
         "--max-triplets",
@@ -395,7 +410,6 @@ def main() -> None:
         default=CalibrationOptions.max_triplets,
         help="triplets per camera (default %(default)s, calibrate's)",
     )
-    parser.add_argument("--out", type=Path, default=Path("benchmark_output/real"))
     args = parser.parse_args()
     root = default_datasets_root(BENCHMARKS.parent)
     args.out.mkdir(parents=True, exist_ok=True)
