@@ -279,14 +279,23 @@ def _send(sending: Any, message: tuple[Any, ...]) -> None:
     From here the worker only exits, unwaited for (:func:`_released`): the signals that
     end a run take their default action in it again (it ends, silently), so that the
     caller's own exit, which ends its daemonic children with SIGTERM and joins them,
-    cannot wait on one stuck in its exit."""
+    cannot wait on one stuck in its exit. They take it before the message goes, held
+    back until it has gone: once the caller has the message it may exit at once, and a
+    SIGTERM that came while the worker still ignored it would be lost (CI run 103 waited
+    on such a worker); held back, it is pending, and ends the worker when let through."""
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, TERMINATING_SIGNALS)
     try:
-        sending.send(message)
-    except Exception as unsent:  # noqa: BLE001 - unpicklable: say so instead
-        sending.send((*(None for _ in message[:-1]), RuntimeError(f"not sent back: {unsent!r}")))
-    sending.close()
-    for signum in TERMINATING_SIGNALS:
-        signal.signal(signum, signal.SIG_DFL)
+        for signum in TERMINATING_SIGNALS:
+            signal.signal(signum, signal.SIG_DFL)
+        try:
+            sending.send(message)
+        except Exception as unsent:  # noqa: BLE001 - unpicklable: say so instead
+            sending.send(
+                (*(None for _ in message[:-1]), RuntimeError(f"not sent back: {unsent!r}"))
+            )
+        sending.close()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
 
 
 def _in_worker() -> queue.SimpleQueue[logging.LogRecord]:
